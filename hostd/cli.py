@@ -1,0 +1,43 @@
+"""Command-line entry point: ``hostd <command> ...``.
+
+Each subcommand lives in ``hostd.commands.<name>`` and registers itself through
+``add_parser``; a module that is missing or fails to import is reported, not hidden.
+"""
+
+import argparse
+import importlib
+import sys
+
+from pipeline import __version__
+
+# Order is the order shown in --help.
+COMMANDS = ["run", "plan", "stream", "sim_printer", "calibrate", "jobs"]
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="hostd", description="Printer-host service for 4D printing of height fields.")
+    parser.add_argument("--version", action="version", version="hostd " + __version__)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module("hostd.commands." + name)
+        except ModuleNotFoundError as exc:
+            if exc.name == "hostd.commands." + name:
+                continue  # command not built yet
+            raise
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("hostd: interrupted", file=sys.stderr)
+        return 130
