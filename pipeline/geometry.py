@@ -1,0 +1,146 @@
+"""Mesh container and small vectorised geometry helpers shared by the stages.
+
+Conventions: millimetres; faces counter-clockwise seen from +z on the target
+surface; every unique face edge is either a printing edge (along an isoline)
+or a bridge edge (everything else).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Mesh:
+    """Triangle mesh of the target surface, with the paper's edge classes.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float, mm
+    faces : (m, 3) int
+    printing_edges : (p, 2) int
+        Edges along isolines (the printing direction), sorted vertex pairs.
+    bridge_edges : (b, 2) int
+        All other edges (along gradient lines, diagonals, fans), sorted pairs.
+    vertex_level : (n,) float, mm
+        Isoline value per vertex: the height of the isoline it lies on; for
+        inserted centre and boundary vertices, their own height.
+    printing_isoline : (p,) int
+        Isoline id of each printing edge (index into ``isoline_level``).
+    isoline_level : (k,) float, mm
+        Height of each isoline piece.
+    isoline_closed : (k,) bool
+        True for closed loops, False for open arcs ending on the boundary.
+    info : dict
+        Counts for the report (``isolines``, ``saddles``, ``peaks``, ...).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    printing_edges: np.ndarray
+    bridge_edges: np.ndarray
+    vertex_level: np.ndarray
+    printing_isoline: np.ndarray
+    isoline_level: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    isoline_closed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    info: dict = field(default_factory=dict)
+
+
+def unique_edges(faces):
+    """Unique undirected edges of a triangle mesh.
+
+    Parameters
+    ----------
+    faces : (m, 3) int
+
+    Returns
+    -------
+    edges : (e, 2) int, sorted pairs, lexicographically sorted rows
+    """
+    faces = np.asarray(faces)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e.sort(axis=1)
+    return np.unique(e, axis=0)
+
+
+def edge_lengths(points, edges):
+    """Lengths of ``edges`` ((e, 2) int) over ``points`` ((n, d) float): (e,) float."""
+    d = points[edges[:, 1]] - points[edges[:, 0]]
+    return np.sqrt(np.einsum("ij,ij->i", d, d))
+
+
+def face_areas(points, faces):
+    """Unsigned triangle areas: (m,) float, mm^2 (points (n, 2) or (n, 3))."""
+    a = points[faces[:, 1]] - points[faces[:, 0]]
+    b = points[faces[:, 2]] - points[faces[:, 0]]
+    if points.shape[1] == 2:
+        return 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(a, b), axis=1)
+
+
+def signed_areas_2d(points, faces):
+    """Signed areas of triangles in the plane: (m,) float; > 0 counter-clockwise."""
+    a = points[faces[:, 1], :2] - points[faces[:, 0], :2]
+    b = points[faces[:, 2], :2] - points[faces[:, 0], :2]
+    return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+
+
+def edge_index(edges, query):
+    """Row of each ``query`` edge in sorted-pair ``edges``; -1 where absent.
+
+    edges : (e, 2) int sorted pairs; query : (q, 2) int (any order). Returns (q,) int.
+    """
+    edges = np.asarray(edges, dtype=np.int64)
+    q = np.sort(np.asarray(query, dtype=np.int64), axis=1)
+    n = int(max(edges.max(initial=0), q.max(initial=0))) + 1
+    keys = edges[:, 0] * n + edges[:, 1]
+    order = np.argsort(keys)
+    qk = q[:, 0] * n + q[:, 1]
+    pos = np.searchsorted(keys[order], qk)
+    pos = np.clip(pos, 0, len(keys) - 1)
+    hit = keys[order][pos] == qk if len(keys) else np.zeros(len(qk), bool)
+    out = np.full(len(qk), -1, dtype=np.int64)
+    out[hit] = order[pos[hit]]
+    return out
+
+
+@dataclass
+class HeightField:
+    """A height field on a regular grid.
+
+    Attributes
+    ----------
+    z : (rows, cols) float, mm
+        Height above the lowest point; NaN outside the footprint.
+        Row 0 is the top of the image (north); x = column * pixel_mm,
+        y = (rows - 1 - row) * pixel_mm, so +y points north and faces seen
+        from +z are counter-clockwise in (x, y).
+    pixel_mm : float
+        Grid spacing in mm.
+    color : (rows, cols, 3) uint8 or None
+        Optional surface colour per sample.
+    source : str
+        Where it came from (file name or shape name), for messages.
+    """
+
+    z: np.ndarray
+    pixel_mm: float
+    color: np.ndarray = None
+    source: str = ""
+
+    @property
+    def footprint(self):
+        """(rows, cols) bool: where the field has data."""
+        return np.isfinite(self.z)
+
+    def xy(self, rows, cols):
+        """Grid indices (float ok) to plane coordinates in mm: (..., 2)."""
+        rows = np.asarray(rows, dtype=float)
+        cols = np.asarray(cols, dtype=float)
+        return np.stack([cols * self.pixel_mm,
+                         (self.z.shape[0] - 1 - rows) * self.pixel_mm], axis=-1)
+
+    def rc(self, xy):
+        """Plane coordinates (..., 2) mm to fractional (row, col) indices."""
+        xy = np.asarray(xy, dtype=float)
+        return (self.z.shape[0] - 1 - xy[..., 1] / self.pixel_mm), xy[..., 0] / self.pixel_mm
