@@ -1,0 +1,526 @@
+"""Printer profiles: one YAML file per printer set-up, validated into a frozen ``Profile``.
+
+The schema lives in the dataclasses below (one per YAML section, field metadata
+gives type, bounds and default) and is documented in ``profiles/README.md``.
+Unknown keys, wrong types and physically inconsistent values are
+:class:`pipeline.errors.InvalidProfile` errors naming the file and key path.
+
+Lookup order for a profile name (``load_profile("generic-0.5mm")``):
+``search_dirs``, then the dirs in env ``HOSTD_PROFILES`` (``os.pathsep``
+separated), then the repo's ``profiles/``, then ``sys.prefix/share/hostd/profiles``.
+"""
+
+import copy
+import hashlib
+import json
+import os
+import string
+import sys
+from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from pipeline.errors import InvalidProfile
+from pipeline.shrink import ShrinkCurve
+
+# s_min/s_max may lie outside the fitted curve by this much (fit noise, half a percent
+# of shrink) before we clamp them to it.
+_SHRINK_TOLERANCE = 5e-3
+
+# Placeholders the G-code templates may use; values come from Profile.gcode_vars().
+GCODE_PLACEHOLDERS = ("hotend_c", "bed_c", "bed_x_mm", "bed_y_mm", "max_z_mm", "nozzle_mm",
+                      "filament_mm", "path_width_mm", "retract_mm", "retract_f", "z_hop_mm",
+                      "travel_f", "print_f", "first_layer_f", "e_mode")
+
+
+def _num(default=MISSING, lo=0.0, strict=True, hi=None, integer=False):
+    """A numeric field: ``lo < v`` (``lo <= v`` if not strict), ``v <= hi``."""
+    kind = "int" if integer else "float"
+    return field(default=default, metadata={"kind": kind, "lo": lo, "strict": strict, "hi": hi})
+
+
+def _str(default=MISSING, choices=None, multiline=False):
+    return field(default=default, metadata={"kind": "str", "choices": choices,
+                                            "multiline": multiline})
+
+
+def _section(cls):
+    return field(default_factory=cls, metadata={"kind": "section", "cls": cls})
+
+
+@dataclass(frozen=True)
+class ThicknessRange:
+    """Allowed layer thickness range, mm."""
+    min: float = _num()
+    max: float = _num()
+
+
+@dataclass(frozen=True)
+class ShrinkLimits:
+    """Usable shrink ratio range for flattening (sigma = 1 - target/flat length)."""
+    s_min: float = _num(0.0, lo=0.0, strict=False, hi=0.99)
+    s_max: float = _num(0.343, lo=0.0, hi=0.99)
+
+
+@dataclass(frozen=True)
+class Speeds:
+    """Feed rates, mm/s."""
+    print: float = _num(50.0)
+    first_layer: float = _num(30.0)
+    travel: float = _num(150.0)
+
+
+@dataclass(frozen=True)
+class Temperatures:
+    """Set points, degrees C (0 = heater off / not present)."""
+    hotend: float = _num(215.0, strict=False, hi=350.0)
+    bed: float = _num(60.0, strict=False, hi=150.0)
+
+
+@dataclass(frozen=True)
+class Retraction:
+    length_mm: float = _num(0.8, strict=False, hi=20.0)
+    speed_mm_s: float = _num(35.0)
+    z_hop_mm: float = _num(0.4, strict=False, hi=10.0)
+
+
+@dataclass(frozen=True)
+class Serial:
+    port: str = _str("/dev/ttyUSB0")
+    baud: int = _num(115200, integer=True)
+
+
+@dataclass(frozen=True)
+class GcodeTemplates:
+    """Multi-line G-code snippets; may use the placeholders in GCODE_PLACEHOLDERS."""
+    start: str = _str("G28\nM104 S{hotend_c}\nM140 S{bed_c}\nM190 S{bed_c}\nM109 S{hotend_c}\n",
+                      multiline=True)
+    end: str = _str("M83\nG1 E-{retract_mm} F{retract_f}\nM104 S0\nM140 S0\nG91\nG1 Z10 F600\n"
+                    "G90\nM84\n", multiline=True)
+    cancel: str = _str("M104 S0\nM140 S0\nM107\nG91\nG1 Z10 F600\nG90\nM84\n", multiline=True)
+    pause: str = _str("G91\nG1 Z10 F600\nG90\n", multiline=True)
+    resume: str = _str("G91\nG1 Z-10 F600\nG90\n{e_mode}\n", multiline=True)
+
+
+@dataclass(frozen=True)
+class MeshParams:
+    isoline_step_mm: float = _num(1.0)
+    gradient_spacing_mm: float = _num(2.0)
+    l_u_mm: float = _num(0.25)
+    min_prominence_mm: float = _num(2.0, strict=False)
+    smooth_mm: float = _num(1.0, strict=False)
+
+
+@dataclass(frozen=True)
+class FlattenParams:
+    """Projective-dynamics iterations and constraint weights (paper 6.2 defaults)."""
+    iterations: int = _num(50, integer=True)
+    w_bridge: float = _num(1.0, strict=False)
+    w_printing: float = _num(1.0, strict=False)
+    w_bending: float = _num(0.025, strict=False)
+    w_shear: float = _num(0.25, strict=False)
+    w_flattening: float = _num(0.3, strict=False)
+    w_stretching: float = _num(1.0, strict=False)
+    w_spreading: float = _num(0.5, strict=False)
+
+
+@dataclass(frozen=True)
+class ToolpathParams:
+    merge_angle_deg: float = _num(2.0, strict=False, hi=45.0)
+    merge_sigma: float = _num(0.005, strict=False, hi=1.0)
+    arc_tolerance_mm: float = _num(0.0, strict=False)
+
+
+@dataclass(frozen=True)
+class ValidateParams:
+    max_fill_mm: float = _num(2.0, strict=False)
+    max_pixels: int = _num(25_000_000, integer=True)
+    min_pixels: int = _num(16, lo=2, strict=False, integer=True)
+
+
+@dataclass(frozen=True)
+class Defaults:
+    """Physical scale for inputs without a sidecar."""
+    size_mm: float = _num(150.0)
+    height_mm: float = _num(30.0)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A validated printer profile.
+
+    ``shrink_curve`` is the fitted :class:`pipeline.shrink.ShrinkCurve` (its
+    ``thickness_mm``, ``shrink`` and ``degree`` are the YAML's points and degree).
+    ``source`` is the file it came from, ``raw`` the parsed YAML as written,
+    ``warnings`` what was adjusted at load (e.g. s_max clamped to the curve).
+    """
+
+    name: str = _str()
+    bed_mm: tuple = field(default=MISSING, metadata={"kind": "pair"})
+    nozzle_mm: float = _num(hi=5.0)
+    filament_mm: float = _num(hi=5.0)
+    path_width_mm: float = _num(hi=5.0)
+    layers: int = _num(lo=1, strict=False, integer=True)
+    thickness_mm: ThicknessRange = field(default=MISSING,
+                                         metadata={"kind": "section", "cls": ThicknessRange})
+    shrink_curve: ShrinkCurve = field(default=MISSING, metadata={"kind": "curve"})
+    description: str = _str("")
+    max_z_mm: float = _num(200.0)
+    filament_density_g_cm3: float = _num(1.24)
+    shrink_limits: ShrinkLimits = _section(ShrinkLimits)
+    speeds_mm_s: Speeds = _section(Speeds)
+    temperatures_c: Temperatures = _section(Temperatures)
+    retraction: Retraction = _section(Retraction)
+    extrusion: str = _str("relative", choices=("relative", "absolute"))
+    serial: Serial = _section(Serial)
+    gcode: GcodeTemplates = _section(GcodeTemplates)
+    mesh: MeshParams = _section(MeshParams)
+    flatten: FlattenParams = _section(FlattenParams)
+    toolpath: ToolpathParams = _section(ToolpathParams)
+    validate: ValidateParams = _section(ValidateParams)
+    defaults: Defaults = _section(Defaults)
+    source: str = field(default="", compare=False, metadata={"kind": None})
+    raw: dict = field(default_factory=dict, compare=False, repr=False, metadata={"kind": None})
+    warnings: tuple = field(default=(), compare=False, metadata={"kind": None})
+
+    def gcode_vars(self):
+        """Values for the G-code template placeholders (feed rates ``*_f`` in mm/min)."""
+        return {"hotend_c": _fmt(self.temperatures_c.hotend), "bed_c": _fmt(self.temperatures_c.bed),
+                "bed_x_mm": _fmt(self.bed_mm[0]), "bed_y_mm": _fmt(self.bed_mm[1]),
+                "max_z_mm": _fmt(self.max_z_mm), "nozzle_mm": _fmt(self.nozzle_mm),
+                "filament_mm": _fmt(self.filament_mm), "path_width_mm": _fmt(self.path_width_mm),
+                "retract_mm": _fmt(self.retraction.length_mm),
+                "retract_f": _fmt(60 * self.retraction.speed_mm_s),
+                "z_hop_mm": _fmt(self.retraction.z_hop_mm),
+                "travel_f": _fmt(60 * self.speeds_mm_s.travel),
+                "print_f": _fmt(60 * self.speeds_mm_s.print),
+                "first_layer_f": _fmt(60 * self.speeds_mm_s.first_layer),
+                "e_mode": "M83" if self.extrusion == "relative" else "M82"}
+
+    def render_gcode(self, which):
+        """The ``gcode.<which>`` template with placeholders filled: str."""
+        return getattr(self.gcode, which).format(**self.gcode_vars())
+
+
+def _fmt(v):
+    """Numbers as G-code likes them: no trailing zeros, no exponent."""
+    return ("%.4f" % v).rstrip("0").rstrip(".")
+
+
+def _err(msg, code, src, where, fix):
+    return InvalidProfile(msg, code=code, file=src, where=where, fix=fix)
+
+
+def _type_name(kind):
+    return {"float": "a number", "int": "an integer", "str": "a string",
+            "section": "a mapping", "pair": "a list of two numbers"}.get(kind, kind)
+
+
+def _check_value(value, f, key, src):
+    """Type and bound check of one scalar field; returns the converted value."""
+    m = f.metadata
+    kind = m["kind"]
+    if kind == "str":
+        if not isinstance(value, str):
+            raise _err("%s must be a string, got %r" % (key, value), "profile.type", src, key,
+                       "quote the value")
+        if m["choices"] and value not in m["choices"]:
+            raise _err("%s must be one of %s, got %r" % (key, ", ".join(m["choices"]), value),
+                       "profile.value", src, key, "use one of " + ", ".join(m["choices"]))
+        return value
+    is_int = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    is_num = is_int or (isinstance(value, (float, np.floating)) and not isinstance(value, bool))
+    if kind == "int" and not is_int:
+        raise _err("%s must be an integer, got %r" % (key, value), "profile.type", src, key,
+                   "write a whole number without a decimal point")
+    if not is_num:
+        raise _err("%s must be a number, got %r" % (key, value), "profile.type", src, key,
+                   "write a plain number (YAML reads 1e-3 as text; write 0.001)")
+    v = int(value) if kind == "int" else float(value)
+    lo, hi = m["lo"], m["hi"]
+    if not np.isfinite(v) or (v <= lo if m["strict"] else v < lo) or (hi is not None and v > hi):
+        rng = "%s %g" % (">" if m["strict"] else ">=", lo)
+        if hi is not None:
+            rng += " and <= %g" % hi
+        raise _err("%s = %r is out of range (must be %s)" % (key, value, rng), "profile.value",
+                   src, key, "use a value %s" % rng)
+    return v
+
+
+def _build(cls, data, path, src):
+    """Build dataclass ``cls`` from mapping ``data`` at key path ``path``."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise _err("%s must be a mapping of keys, got %r" % (path or "the profile", data),
+                   "profile.type", src, path or "/", "write it as `key: value` lines")
+    schema = [f for f in fields(cls) if f.metadata.get("kind")]
+    known = {f.name for f in schema}
+    unknown = [str(k) for k in data if k not in known]
+    if unknown:
+        key = (path + "." if path else "") + unknown[0]
+        raise _err("unknown key %r" % key, "profile.unknown_key", src, key,
+                   "remove it or use one of: " + ", ".join(sorted(known)))
+    out = {}
+    for f in schema:
+        key = (path + "." if path else "") + f.name
+        if f.name not in data:
+            if f.default is MISSING and f.default_factory is MISSING:
+                raise _err("missing required key %r" % key, "profile.missing_key", src, key,
+                           "add `%s:` (see profiles/README.md)" % key)
+            continue
+        value, kind = data[f.name], f.metadata["kind"]
+        if kind == "section":
+            out[f.name] = _build(f.metadata["cls"], value, key, src)
+        elif kind == "pair":
+            out[f.name] = _pair(value, key, src)
+        elif kind == "curve":
+            out[f.name] = value  # fitted later, once the thickness range is known
+        else:
+            out[f.name] = _check_value(value, f, key, src)
+    return out if cls is Profile else cls(**out)
+
+
+def _pair(value, key, src):
+    if not (isinstance(value, (list, tuple)) and len(value) == 2):
+        raise _err("%s must be a list of two numbers [x, y], got %r" % (key, value),
+                   "profile.type", src, key, "write e.g. [220, 220]")
+    f = _num()
+    return tuple(_check_value(v, f, "%s[%d]" % (key, i), src) for i, v in enumerate(value))
+
+
+def _curve(value, trange, src):
+    """Fit the ShrinkCurve from ``shrink_curve: {degree, points}``."""
+    key = "shrink_curve"
+    if not isinstance(value, dict):
+        raise _err("shrink_curve must be a mapping {degree, points}", "profile.type", src, key,
+                   "write shrink_curve: {degree: 4, points: [[0.1, 0.343], ...]}")
+    unknown = [str(k) for k in value if k not in ("degree", "points")]
+    if unknown:
+        raise _err("unknown key %r" % (key + "." + unknown[0]), "profile.unknown_key", src,
+                   key + "." + unknown[0], "use degree and points")
+    if "points" not in value:
+        raise _err("missing required key 'shrink_curve.points'", "profile.missing_key", src,
+                   key + ".points", "list the measured [thickness_mm, shrink] pairs")
+    degree = _check_value(value.get("degree", 4), _num(lo=1, strict=False, hi=8, integer=True),
+                          key + ".degree", src)
+    pts = value["points"]
+    num = _num(lo=-1.0, strict=False)  # sign and range are ShrinkCurve's business
+    if not isinstance(pts, list) or not all(isinstance(p, (list, tuple)) and len(p) == 2
+                                            for p in pts):
+        raise _err("shrink_curve.points must be a list of [thickness_mm, shrink] pairs",
+                   "profile.type", src, key + ".points", "write [[0.1, 0.343], [0.15, 0.28], ...]")
+    arr = np.array([[_check_value(v, num, "%s.points[%d][%d]" % (key, i, j), src)
+                     for j, v in enumerate(p)] for i, p in enumerate(pts)], dtype=float)
+    arr = arr.reshape(-1, 2)
+    return ShrinkCurve(arr[:, 0], arr[:, 1], degree=degree,
+                       theta_range_mm=(trange.min, trange.max), source=src)
+
+
+def parse_profile(data, source=None):
+    """Validate a parsed YAML mapping into a :class:`Profile`.
+
+    Parameters
+    ----------
+    data : dict
+        The profile as parsed from YAML.
+    source : str or Path, optional
+        File name for messages; also stored as ``Profile.source``.
+    """
+    src = None if source is None else str(source)
+    raw = copy.deepcopy(data)
+    vals = _build(Profile, data, "", src)
+    trange = vals["thickness_mm"]
+    if not trange.min < trange.max:
+        raise _err("thickness_mm.min (%g) must be below thickness_mm.max (%g)"
+                   % (trange.min, trange.max), "profile.value", src, "thickness_mm",
+                   "set min below max")
+    if trange.max > vals["nozzle_mm"]:
+        raise _err("thickness_mm.max (%g mm) exceeds the nozzle diameter (%g mm)"
+                   % (trange.max, vals["nozzle_mm"]), "profile.value", src, "thickness_mm.max",
+                   "layers thicker than the nozzle do not extrude reliably; lower it")
+    ratio = vals["path_width_mm"] / vals["nozzle_mm"]
+    if not 0.6 <= ratio <= 2.0:
+        raise _err("path_width_mm (%g) is implausible for a %g mm nozzle (ratio %.2f)"
+                   % (vals["path_width_mm"], vals["nozzle_mm"], ratio), "profile.value", src,
+                   "path_width_mm", "use roughly 0.9-1.2 times the nozzle diameter")
+    curve = _curve(vals["shrink_curve"], trange, src)
+    vals["shrink_curve"] = curve
+    warnings = []
+    if curve.thickness_mm.min() > trange.min + 1e-9 or curve.thickness_mm.max() < trange.max - 1e-9:
+        warnings.append("thickness_mm range %g..%g mm extends beyond the measured thicknesses "
+                        "%g..%g mm; the shrink curve is extrapolated there"
+                        % (trange.min, trange.max, curve.thickness_mm.min(),
+                           curve.thickness_mm.max()))
+    limits = vals.get("shrink_limits", ShrinkLimits())
+    s_min, s_max = limits.s_min, limits.s_max
+    if not s_min < s_max:
+        raise _err("shrink_limits.s_min (%g) must be below s_max (%g)" % (s_min, s_max),
+                   "profile.value", src, "shrink_limits", "set s_min below s_max")
+    c_lo, c_hi = curve.sigma_range
+    explicit = isinstance(data.get("shrink_limits"), dict)
+    if s_max > c_hi + _SHRINK_TOLERANCE:
+        if explicit and "s_max" in data["shrink_limits"]:
+            warnings.append("shrink_limits.s_max %.4g clamped to %.4g, the most the shrink curve "
+                            "reaches on thickness_mm" % (s_max, c_hi))
+        s_max = c_hi
+    if s_min < c_lo - _SHRINK_TOLERANCE:
+        if explicit and "s_min" in data["shrink_limits"]:
+            warnings.append("shrink_limits.s_min %.4g clamped to %.4g, the least the shrink "
+                            "curve reaches on thickness_mm" % (s_min, c_lo))
+        s_min = c_lo
+    if not s_min < s_max:
+        raise _err("shrink_limits %g..%g lie outside the shrink curve's range %.4g..%.4g"
+                   % (limits.s_min, limits.s_max, c_lo, c_hi), "profile.value", src,
+                   "shrink_limits", "set s_min/s_max within the measured shrink range")
+    vals["shrink_limits"] = ShrinkLimits(s_min, s_max)
+    gcode = vals.get("gcode", GcodeTemplates())
+    for f in fields(GcodeTemplates):
+        _check_placeholders(getattr(gcode, f.name), "gcode." + f.name, src)
+    return Profile(**vals, source=src or "", raw=raw, warnings=tuple(warnings))
+
+
+def _check_placeholders(template, key, src):
+    try:
+        names = [p[1] for p in string.Formatter().parse(template) if p[1] is not None]
+    except ValueError as exc:
+        raise _err("%s is not a valid template: %s" % (key, exc), "profile.value", src, key,
+                   "write literal braces as {{ and }}") from None
+    bad = [n for n in names if n not in GCODE_PLACEHOLDERS]
+    if bad:
+        raise _err("%s uses unknown placeholder {%s}" % (key, bad[0]), "profile.value", src, key,
+                   "use one of " + ", ".join("{%s}" % p for p in GCODE_PLACEHOLDERS))
+
+
+def profile_search_dirs(search_dirs=None):
+    """The directories searched for profile names, in order: list of Path."""
+    dirs = [Path(d) for d in (search_dirs or [])]
+    env = os.environ.get("HOSTD_PROFILES", "")
+    dirs += [Path(d) for d in env.split(os.pathsep) if d]
+    import pipeline
+    dirs.append(Path(pipeline.__file__).resolve().parent.parent / "profiles")
+    dirs.append(Path(sys.prefix) / "share" / "hostd" / "profiles")
+    return dirs
+
+
+def _looks_like_path(s):
+    return os.sep in s or (os.altsep and os.altsep in s) or s.endswith((".yaml", ".yml"))
+
+
+def find_profile(name_or_path, search_dirs=None):
+    """Path of the profile file for a name or path; raises ``profile.not_found``."""
+    s = str(name_or_path)
+    p = Path(s).expanduser()
+    if isinstance(name_or_path, Path) or _looks_like_path(s) or p.is_file():
+        if p.is_file():
+            return p
+        raise _err("profile file not found", "profile.not_found", s, None,
+                   "check the path, or give a profile name (see `list_profiles()`)")
+    dirs = profile_search_dirs(search_dirs)
+    for d in dirs:
+        for ext in (".yaml", ".yml"):
+            if (d / (s + ext)).is_file():
+                return d / (s + ext)
+    known = sorted(list_profiles(search_dirs))
+    raise _err("no profile named %r in %s" % (s, ", ".join(str(d) for d in dirs)),
+               "profile.not_found", None, s,
+               "use one of: %s, or a path to a .yaml file" % (", ".join(known) or "(none found)"))
+
+
+def load_profile(name_or_path, search_dirs=None):
+    """Load and validate a profile by name or path: :class:`Profile`.
+
+    Raises :class:`InvalidProfile` (``profile.not_found``, ``profile.yaml``,
+    ``profile.unknown_key``, ``profile.type``, ``profile.missing_key``,
+    ``profile.value``, ``profile.shrink_*``).
+    """
+    path = find_profile(name_or_path, search_dirs)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise _err("cannot read profile: %s" % exc, "profile.yaml", path, None,
+                   "save it as UTF-8 text") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = "line %d, column %d" % (mark.line + 1, mark.column + 1) if mark else None
+        raise _err("not valid YAML: %s" % getattr(exc, "problem", exc), "profile.yaml", path,
+                   where, "fix the YAML syntax (indentation, quotes, colons)") from None
+    if data is None:
+        raise _err("profile is empty", "profile.yaml", path, None,
+                   "copy a shipped profile from profiles/ and edit it")
+    return parse_profile(data, source=path)
+
+
+def list_profiles(search_dirs=None):
+    """Profiles visible by name: dict name -> Path (earlier search dirs win), sorted by name."""
+    found = {}
+    for d in profile_search_dirs(search_dirs):
+        if d.is_dir():
+            for p in sorted(list(d.glob("*.yaml")) + list(d.glob("*.yml"))):
+                found.setdefault(p.stem, p)
+    return dict(sorted(found.items()))
+
+
+def profile_dict(profile):
+    """The profile's full content with defaults filled in, as plain YAML-able data."""
+    out = {}
+    for f in fields(Profile):
+        kind = f.metadata.get("kind")
+        v = getattr(profile, f.name)
+        if kind == "section":
+            out[f.name] = {g.name: getattr(v, g.name) for g in fields(v)}
+        elif kind == "pair":
+            out[f.name] = [float(x) for x in v]
+        elif kind == "curve":
+            out[f.name] = {"degree": int(v.degree),
+                           "points": [[float(t), float(s)] for t, s in zip(v.thickness_mm, v.shrink)]}
+        elif kind:
+            out[f.name] = v
+    return out
+
+
+def profile_hash(profile):
+    """sha256 hex digest of the profile's canonical content (for plan caching)."""
+    text = json.dumps(profile_dict(profile), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+def _str_presenter(dumper, s):
+    style = "|" if "\n" in s else None
+    return dumper.represent_scalar("tag:yaml.org,2002:str", s, style=style)
+
+
+_Dumper.add_representer(str, _str_presenter)
+
+
+def _merge(base, changes):
+    for k, v in changes.items():
+        if isinstance(v, dict) and isinstance(base.get(k), dict):
+            _merge(base[k], v)
+        else:
+            base[k] = v
+    return base
+
+
+def profile_to_yaml(profile, comment=None, **changes):
+    """YAML text of ``profile`` with ``changes`` applied (validated before returning).
+
+    ``changes`` are top-level keys; mappings merge into sections, e.g.
+    ``profile_to_yaml(p, shrink_curve={"points": [[0.1, 0.3], ...]},
+    shrink_limits={"s_max": 0.3})``. ``comment`` lines go on top as ``# ...``.
+    """
+    data = _merge(profile_dict(profile), copy.deepcopy(changes))
+    parse_profile(copy.deepcopy(data), source=profile.source or None)
+    text = yaml.dump(data, Dumper=_Dumper, sort_keys=False, default_flow_style=None,
+                     allow_unicode=True, width=100)
+    if comment:
+        text = "".join("# " + line + "\n" for line in str(comment).splitlines()) + text
+    return text
