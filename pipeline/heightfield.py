@@ -1,0 +1,536 @@
+"""Read a height field from an image, an array file or a mesh, with its sidecar.
+
+Inputs: 8/16-bit grayscale PNG/TIFF (LA/RGBA alpha = 0 is outside; 32-bit
+float TIFF too), ``.npy``/``.npz`` (float, millimetres, NaN outside) and
+STL/OBJ/PLY/GLB meshes (top surface sampled on a grid from above). Physical
+scale comes from the optional sidecar ``NAME.yaml`` or the profile's
+``defaults``. Everything a host should not trust is refused before it costs
+memory: the declared pixel count is checked from the header before decoding.
+
+Error codes (``InvalidHeightField``): ``heightfield.not_found``, ``.empty``,
+``.unsupported_type`` (extension), ``.content_mismatch`` (bytes are not what
+the extension says), ``.truncated``, ``.unreadable``, ``.too_many_pixels``,
+``.pickled``, ``.bad_dtype``, ``.npz_key``, ``.not_2d``, ``.non_finite``,
+``.no_footprint``, ``.flat``, ``.too_small``, ``.color_mismatch``; sidecar
+errors (``InvalidSidecar``): ``sidecar.yaml``, ``.unknown_key``, ``.type``,
+``.value``, ``.conflict``.
+"""
+
+import warnings
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from PIL import Image
+
+from pipeline.errors import InvalidHeightField, InvalidSidecar
+from pipeline.geometry import HeightField
+
+IMAGE_EXT = (".png", ".tif", ".tiff")
+ARRAY_EXT = (".npy", ".npz")
+MESH_EXT = (".stl", ".obj", ".ply", ".glb")
+
+# Used when no profile is given (same as the profile schema's defaults).
+_DEFAULT_SIZE_MM = 150.0
+_DEFAULT_HEIGHT_MM = 30.0
+_DEFAULT_MAX_PIXELS = 25_000_000
+_DEFAULT_MIN_PIXELS = 16
+# Grid pitch for meshes without pixel_mm: about the paper's path width.
+MESH_PIXEL_MM = 0.5
+
+_MAGIC = {
+    ".png": (b"\x89PNG\r\n\x1a\n",),
+    ".tif": (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"),
+    ".npy": (b"\x93NUMPY",),
+    ".npz": (b"PK\x03\x04", b"PK\x05\x06"),
+    ".glb": (b"glTF",),
+    ".ply": (b"ply",),
+}
+_MAGIC[".tiff"] = _MAGIC[".tif"]
+
+
+@dataclass(frozen=True)
+class Sidecar:
+    """Options from ``NAME.yaml`` beside an input (all optional).
+
+    size_mm : longest footprint side, mm (or ``pixel_mm``: grid spacing, mm)
+    height_mm : maximum height, mm (or ``height_scale``: mm per input unit)
+    profile : profile name or path to plan with
+    max_fill_mm : deepest closed depression to fill, mm (overrides the profile)
+    min_prominence_mm : smallest peak kept by simplification, mm (overrides the profile)
+    copies : how many sheets to print (>= 1); priority : queue priority (daemon)
+    source : the sidecar file, or None when there is none
+    """
+
+    size_mm: float = None
+    pixel_mm: float = None
+    height_mm: float = None
+    height_scale: float = None
+    profile: str = None
+    max_fill_mm: float = None
+    min_prominence_mm: float = None
+    copies: int = 1
+    priority: int = 0
+    source: str = None
+
+
+# key -> (kind, strictly positive?)
+_SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
+                   "height_mm": ("float", True), "height_scale": ("float", True),
+                   "profile": ("str", False), "max_fill_mm": ("float", False),
+                   "min_prominence_mm": ("float", False), "copies": ("int", True),
+                   "priority": ("int", None)}
+
+
+def sidecar_path(path):
+    """``NAME.yaml`` beside input ``NAME.ext``: Path."""
+    path = Path(path)
+    return path.with_name(path.stem + ".yaml")
+
+
+def load_sidecar(path):
+    """Parse and check a sidecar YAML file: :class:`Sidecar`.
+
+    A missing file gives ``Sidecar()`` (all defaults, ``source=None``).
+    """
+    path = Path(path)
+    if not path.is_file():
+        return Sidecar()
+    src = str(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise InvalidSidecar("not valid YAML: %s" % getattr(exc, "problem", exc),
+                             code="sidecar.yaml", file=src,
+                             where=mark and "line %d" % (mark.line + 1),
+                             fix="fix the YAML syntax, e.g. `size_mm: 150`") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InvalidSidecar("a sidecar must be a mapping of keys", code="sidecar.type",
+                             file=src, fix="write `key: value` lines, e.g. `size_mm: 150`")
+    vals = {}
+    for key, value in data.items():
+        if key not in _SIDECAR_SCHEMA:
+            raise InvalidSidecar("unknown sidecar key %r" % key, code="sidecar.unknown_key",
+                                 file=src, where=str(key),
+                                 fix="use only: " + ", ".join(_SIDECAR_SCHEMA))
+        kind, positive = _SIDECAR_SCHEMA[key]
+        vals[key] = _sidecar_value(key, value, kind, positive, src)
+    for a, b in (("size_mm", "pixel_mm"), ("height_mm", "height_scale")):
+        if a in vals and b in vals:
+            raise InvalidSidecar("give either %s or %s, not both" % (a, b),
+                                 code="sidecar.conflict", file=src, where=b,
+                                 fix="remove one of them")
+    return Sidecar(**vals, source=src)
+
+
+def _sidecar_value(key, value, kind, positive, src):
+    if kind == "str":
+        if not isinstance(value, str) or not value:
+            raise InvalidSidecar("%s must be a non-empty string, got %r" % (key, value),
+                                 code="sidecar.type", file=src, where=key,
+                                 fix="write e.g. `profile: generic-0.5mm`")
+        return value
+    is_int = isinstance(value, int) and not isinstance(value, bool)
+    if kind == "int" and not is_int:
+        raise InvalidSidecar("%s must be an integer, got %r" % (key, value),
+                             code="sidecar.type", file=src, where=key,
+                             fix="write a whole number")
+    if not (is_int or isinstance(value, float)):
+        raise InvalidSidecar("%s must be a number, got %r" % (key, value),
+                             code="sidecar.type", file=src, where=key,
+                             fix="write a plain number in mm, e.g. `%s: 2.0`" % key)
+    if not np.isfinite(value) or (positive and value <= 0) or (positive is False and value < 0):
+        raise InvalidSidecar("%s = %r is out of range" % (key, value), code="sidecar.value",
+                             file=src, where=key,
+                             fix="use a number %s 0" % (">" if positive else ">="))
+    return int(value) if kind == "int" else float(value)
+
+
+def settings(sidecar, profile=None):
+    """Effective per-file options: sidecar over profile over built-in defaults.
+
+    Returns dict with ``max_fill_mm``, ``min_prominence_mm``, ``smooth_mm``.
+    """
+    out = {"max_fill_mm": 2.0, "min_prominence_mm": 2.0, "smooth_mm": 1.0}
+    if profile is not None:
+        out.update(max_fill_mm=profile.validate.max_fill_mm,
+                   min_prominence_mm=profile.mesh.min_prominence_mm,
+                   smooth_mm=profile.mesh.smooth_mm)
+    for k in ("max_fill_mm", "min_prominence_mm"):
+        if getattr(sidecar, k) is not None:
+            out[k] = getattr(sidecar, k)
+    return out
+
+
+def _fail(code, msg, path, fix, where=None, **details):
+    return InvalidHeightField(msg, code=code, file=path, where=where, fix=fix, details=details)
+
+
+def load(path, profile=None, max_pixels=None):
+    """Read an input file and its sidecar into a height field in millimetres.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.png``, ``.tif``/``.tiff``, ``.npy``, ``.npz``, ``.stl``, ``.obj``, ``.ply`` or ``.glb``.
+    profile : pipeline.profile.Profile, optional
+        Supplies ``defaults`` (scale without sidecar) and ``validate`` limits.
+    max_pixels : int, optional
+        Refuse inputs declaring more samples (default: the profile's
+        ``validate.max_pixels``, else 25 million).
+
+    Returns
+    -------
+    hf : HeightField
+        ``z`` (rows, cols) float mm, minimum 0 on the footprint, NaN outside.
+    sidecar : Sidecar
+    """
+    path = Path(path)
+    name = str(path)
+    if not path.is_file():
+        raise _fail("heightfield.not_found", "input file not found", name,
+                    "check the path" if not path.is_dir() else "give a file, not a directory")
+    size_bytes = path.stat().st_size
+    if size_bytes == 0:
+        raise _fail("heightfield.empty", "input file is empty (0 bytes)", name,
+                    "the upload or copy did not finish; send the file again")
+    ext = path.suffix.lower()
+    if ext not in IMAGE_EXT + ARRAY_EXT + MESH_EXT:
+        raise _fail("heightfield.unsupported_type", "unsupported input type %r" % ext, name,
+                    "use a grayscale PNG/TIFF, .npy/.npz in mm, or an STL/OBJ/PLY/GLB mesh")
+    _check_magic(path, ext)
+    sidecar = load_sidecar(sidecar_path(path))
+    if max_pixels is None:
+        max_pixels = profile.validate.max_pixels if profile is not None else _DEFAULT_MAX_PIXELS
+    size_mm = profile.defaults.size_mm if profile is not None else _DEFAULT_SIZE_MM
+    height_mm = profile.defaults.height_mm if profile is not None else _DEFAULT_HEIGHT_MM
+    min_pixels = profile.validate.min_pixels if profile is not None else _DEFAULT_MIN_PIXELS
+
+    color = None
+    if ext in IMAGE_EXT:
+        values, unit_height = _read_image(path, max_pixels), height_mm
+    elif ext in ARRAY_EXT:
+        values, unit_height = _read_array(path, ext, max_pixels), None
+    else:
+        values, color, pixel_mm = _read_mesh(path, sidecar, max_pixels)
+        unit_height = None
+    z = _to_mm(values, path, sidecar, unit_height)
+    if ext not in MESH_EXT:
+        pixel_mm = _pixel_mm(z, sidecar, size_mm)
+    _check_size(z, path, min_pixels)
+    if color is None:
+        color = _read_color(path, z.shape, max_pixels)
+    return HeightField(z, float(pixel_mm), color=color, source=name), sidecar
+
+
+def _check_magic(path, ext):
+    with open(path, "rb") as f:
+        head = f.read(512)
+    magics = _MAGIC.get(ext)
+    ok = any(head.startswith(m) for m in magics) if magics else True
+    if ext == ".stl":
+        # Binary STL has no magic; its triangle records are not text, a stray text file is.
+        ok = head.lstrip().startswith(b"solid") or (
+            _stl_binary_size(path) is not None and not (b"\x00" not in head and _is_text(head)))
+    elif ext == ".obj":
+        ok = b"\x00" not in head and _is_text(head)
+    if not ok:
+        raise _fail("heightfield.content_mismatch",
+                    "the file's content is not %s data (starts with %r)" % (ext, head[:8]),
+                    str(path), "rename it to its real type or export it again as %s" % ext)
+
+
+def _is_text(head):
+    try:
+        head.decode("utf-8")
+        return True
+    except UnicodeDecodeError as exc:
+        return exc.start > len(head) - 4  # a multi-byte character cut at the 512-byte mark
+
+
+def _stl_binary_size(path):
+    """Expected size of a binary STL from its face count, or None if it cannot be binary."""
+    size = path.stat().st_size
+    if size < 84:
+        return None
+    with open(path, "rb") as f:
+        f.seek(80)
+        n = int(np.frombuffer(f.read(4), "<u4")[0])
+    return 84 + 50 * n
+
+
+def _too_many(path, pixels, max_pixels, what="image"):
+    return _fail("heightfield.too_many_pixels",
+                 "%s declares %s pixels, more than the limit of %s" % (what, pixels, max_pixels),
+                 str(path), "downsample it, or raise validate.max_pixels in the profile",
+                 pixels=pixels, max_pixels=max_pixels)
+
+
+def _read_image(path, max_pixels):
+    """Grey values (rows, cols) float with NaN where alpha == 0; unit: fraction of full scale."""
+    name = str(path)
+    try:
+        with warnings.catch_warnings():
+            # Our own limit is applied below; Pillow's warning would only be noise.
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+    except Image.DecompressionBombError as exc:
+        raise _fail("heightfield.too_many_pixels", "image header declares too many pixels (%s)"
+                    % exc, name, "downsample it, or raise validate.max_pixels in the profile",
+                    max_pixels=max_pixels) from None
+    except Exception as exc:  # Pillow raises many types for broken headers
+        raise _fail("heightfield.truncated", "image header cannot be read (%s)" % exc, name,
+                    "the file is damaged or cut off; export it again") from None
+    with im:
+        w, h = im.size
+        if w * h > max_pixels:
+            raise _too_many(path, w * h, max_pixels)
+        mode = im.mode
+        try:
+            im.load()
+        except Exception as exc:
+            raise _fail("heightfield.truncated", "image data is truncated or corrupt (%s)" % exc,
+                        name, "the file is damaged or cut off; export it again") from None
+        if mode == "P":
+            im = im.convert("RGBA")
+            mode = "RGBA"
+        a = np.asarray(im)
+    alpha = None
+    if mode in ("L", "LA"):
+        full = 255.0
+    elif mode.startswith("I;16"):
+        full = 65535.0
+    elif mode == "I":
+        full = 65535.0 if a.max(initial=0) <= 65535 else float(np.iinfo(np.int32).max)
+    elif mode == "F":
+        full = 1.0
+    elif mode in ("RGB", "RGBA"):
+        # Many tools save grey as RGB; only genuinely coloured heights are refused.
+        rgb = a[..., :3]
+        if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
+            raise _fail("heightfield.not_2d",
+                        "image is in colour (%s); heights must be one grey channel" % mode, name,
+                        "save the heights as 8/16-bit grayscale and any colour as NAME.color.png")
+        full = 255.0
+    else:
+        raise _fail("heightfield.unsupported_type", "unsupported image mode %r" % mode, name,
+                    "save as 8- or 16-bit grayscale (optionally with alpha)")
+    if a.ndim == 3:
+        if a.shape[2] in (2, 4):
+            alpha = a[..., -1]
+        a = a[..., 0]
+    v = a.astype(np.float64) / full
+    if alpha is not None:
+        v[alpha == 0] = np.nan
+    return v
+
+
+def _npy_header(f):
+    version = np.lib.format.read_magic(f)
+    if version == (1, 0):
+        return np.lib.format.read_array_header_1_0(f)
+    return np.lib.format.read_array_header_2_0(f)
+
+
+def _check_array_header(path, f, max_pixels, size_left=None):
+    """Check an .npy header (shape, dtype) before reading any data."""
+    name = str(path)
+    try:
+        shape, _, dtype = _npy_header(f)
+    except Exception as exc:
+        raise _fail("heightfield.truncated", "array header cannot be read (%s)" % exc, name,
+                    "the file is damaged or cut off; save it again with numpy.save") from None
+    if dtype.hasobject:
+        raise _fail("heightfield.pickled", "the array holds Python objects (pickled data), which "
+                    "are never loaded", name, "save a plain float array: np.save(path, z.astype(float))")
+    if len(shape) != 2:
+        raise _fail("heightfield.not_2d", "array has shape %s; a height field is 2-D (rows, cols)"
+                    % (shape,), name, "save one 2-D float array of heights in mm")
+    pixels = int(np.prod(shape))
+    if pixels > max_pixels:
+        raise _too_many(path, pixels, max_pixels, "array")
+    if dtype.kind not in "fiu":
+        raise _fail("heightfield.bad_dtype", "array type %s is not numeric heights" % dtype, name,
+                    "save float heights in mm (NaN outside the footprint)")
+    if size_left is not None and size_left - f.tell() < pixels * dtype.itemsize:
+        raise _fail("heightfield.truncated", "array data is truncated (%d of %d bytes)"
+                    % (size_left - f.tell(), pixels * dtype.itemsize), name,
+                    "the file is cut off; save it again")
+
+
+def _read_array(path, ext, max_pixels):
+    name = str(path)
+    if ext == ".npy":
+        with open(path, "rb") as f:
+            _check_array_header(path, f, max_pixels, path.stat().st_size)
+        try:
+            a = np.load(path, allow_pickle=False)
+        except Exception as exc:
+            raise _fail("heightfield.truncated", "array cannot be read (%s)" % exc, name,
+                        "save it again with numpy.save") from None
+    else:
+        try:
+            with zipfile.ZipFile(path) as zf:
+                keys = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
+                key = keys[0] if len(keys) == 1 else next((k for k in ("z", "height") if k in keys),
+                                                          None)
+                if key is None:
+                    raise _fail("heightfield.npz_key", "archive holds arrays %s; cannot tell which "
+                                "is the height" % keys, name,
+                                "store one array, or name it `z` or `height`")
+                info = zf.getinfo(key + ".npy")
+                with zf.open(info) as f:
+                    _check_array_header(path, f, max_pixels, info.file_size)
+            with np.load(path, allow_pickle=False) as npz:
+                a = npz[key]
+        except InvalidHeightField:
+            raise
+        except Exception as exc:
+            raise _fail("heightfield.truncated", "archive cannot be read (%s)" % exc, name,
+                        "the file is damaged or cut off; save it again with numpy.savez") from None
+    return a.astype(np.float64)
+
+
+def _to_mm(v, path, sidecar, unit_height_mm):
+    """Heights in mm above the footprint's lowest point, NaN outside.
+
+    ``unit_height_mm`` is the default full-scale height for images (fraction
+    inputs); None for inputs already in millimetres.
+    """
+    name = str(path)
+    inside = ~np.isnan(v)
+    if not inside.any():
+        raise _fail("heightfield.no_footprint", "no valid samples: every value is NaN or "
+                    "transparent", name, "mark the footprint with finite heights / opaque pixels")
+    if not np.isfinite(v[inside]).all():
+        r, c = np.argwhere(np.isinf(v))[0]
+        raise _fail("heightfield.non_finite", "infinite height inside the footprint", name,
+                    "replace inf by finite heights, or by NaN outside the footprint",
+                    where="row %d, col %d" % (r, c))
+    lo, hi = v[inside].min(), v[inside].max()
+    if hi - lo <= 0:
+        raise _fail("heightfield.flat", "all heights are equal (%g): nothing to shape" % lo, name,
+                    "a flat sheet needs no 4D print; check the export's bit depth and range")
+    z = v - lo
+    if sidecar.height_mm is not None:
+        z *= sidecar.height_mm / (hi - lo)
+    elif sidecar.height_scale is not None:
+        # Per input unit: images in their integer steps, arrays/meshes in their own unit.
+        z *= sidecar.height_scale * (_image_steps(path) if unit_height_mm is not None else 1.0)
+    elif unit_height_mm is not None:
+        z *= unit_height_mm / (hi - lo)
+    return z
+
+
+def _image_steps(path):
+    with Image.open(path) as im:
+        return 65535.0 if im.mode.startswith("I") else 1.0 if im.mode == "F" else 255.0
+
+
+def _pixel_mm(z, sidecar, default_size_mm):
+    if sidecar.pixel_mm is not None:
+        return sidecar.pixel_mm
+    size_mm = sidecar.size_mm if sidecar.size_mm is not None else default_size_mm
+    rows, cols = np.nonzero(np.isfinite(z))
+    side_px = max(rows.max() - rows.min(), cols.max() - cols.min())
+    return size_mm / max(side_px, 1)
+
+
+def _check_size(z, path, min_pixels):
+    rows, cols = np.nonzero(np.isfinite(z))
+    h, w = rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
+    if min(h, w) < min_pixels:
+        raise _fail("heightfield.too_small", "footprint is only %d x %d samples; at least %d per "
+                    "side are needed to mesh it" % (h, w, min_pixels), str(path),
+                    "use a larger image, or a smaller pixel_mm for meshes")
+
+
+def _read_color(path, shape, max_pixels):
+    """RGB (rows, cols, 3) uint8 from ``NAME.color.png`` resampled to the grid, or None."""
+    cpath = path.with_name(path.stem + ".color.png")
+    if not cpath.is_file():
+        return None
+    name = str(cpath)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(cpath) as im:
+                if im.size[0] * im.size[1] > max_pixels:
+                    raise _too_many(cpath, im.size[0] * im.size[1], max_pixels, "colour image")
+                im.load()
+                rgb = im.convert("RGB")
+    except InvalidHeightField:
+        raise
+    except Exception as exc:
+        raise _fail("heightfield.truncated", "colour image cannot be read (%s)" % exc, name,
+                    "export NAME.color.png again as RGB(A) PNG") from None
+    rows, cols = shape
+    if abs(rgb.size[0] / rgb.size[1] - cols / rows) > 0.02 * cols / rows:
+        raise _fail("heightfield.color_mismatch", "colour image is %dx%d but the heights are %dx%d "
+                    "(different aspect)" % (rgb.size[0], rgb.size[1], cols, rows), name,
+                    "crop the colour image to the height image's extent")
+    return np.asarray(rgb.resize((cols, rows), Image.BILINEAR), dtype=np.uint8)
+
+
+
+def _read_mesh(path, sidecar, max_pixels):
+    """Top surface of a mesh: (z (rows, cols) in mesh units or mm, color or None, pixel_mm)."""
+    import trimesh  # heavy import, only for mesh inputs
+
+    name = str(path)
+    if path.suffix.lower() == ".stl" and not open(path, "rb").read(512).lstrip().startswith(b"solid"):
+        expected = _stl_binary_size(path)
+        if expected is not None and expected > path.stat().st_size:
+            raise _fail("heightfield.truncated", "binary STL declares %d bytes of triangles but has "
+                        "%d" % (expected - 84, path.stat().st_size - 84), name,
+                        "the file is cut off; export it again")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:
+        raise _fail("heightfield.unreadable", "mesh cannot be read (%s)" % exc, name,
+                    "export it again as binary STL, PLY, OBJ or GLB") from None
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    if len(faces) == 0:
+        raise _fail("heightfield.no_footprint", "mesh has no triangles", name,
+                    "export the surface as a triangle mesh")
+    if not np.isfinite(verts).all():
+        raise _fail("heightfield.non_finite", "mesh has non-finite vertex coordinates", name,
+                    "repair the mesh")
+    span = np.ptp(verts[:, :2], axis=0).max()
+    if sidecar.size_mm is not None and span > 0:
+        verts = verts * (sidecar.size_mm / span)  # uniform: keeps the shape's proportions
+    pixel_mm = sidecar.pixel_mm or MESH_PIXEL_MM
+    from pipeline.zbuffer import grid_shape, rasterize_top
+    rows, cols = grid_shape([verts[:, :2].min(axis=0), verts[:, :2].max(axis=0)], pixel_mm)
+    if rows * cols > max_pixels:
+        raise _fail("heightfield.too_many_pixels", "sampling the mesh at %g mm needs %d x %d "
+                    "samples, more than the limit of %d" % (pixel_mm, cols, rows, max_pixels),
+                    name, "set a larger pixel_mm in the sidecar", pixels=rows * cols,
+                    max_pixels=max_pixels)
+    colors = _mesh_vertex_colors(mesh)
+    z, rgb = rasterize_top(verts, faces, pixel_mm, colors)
+    color = None if rgb is None else np.clip(np.rint(rgb[..., :3]), 0, 255).astype(np.uint8)
+    return z, color, pixel_mm
+
+
+def _mesh_vertex_colors(mesh):
+    """(n, 3+) vertex colours from vertex or texture visuals, or None."""
+    visual = getattr(mesh, "visual", None)
+    try:
+        kind = visual.kind if visual is not None else None
+        if kind == "texture":
+            visual = visual.to_color()
+            kind = visual.kind
+        if kind == "vertex":
+            c = np.asarray(visual.vertex_colors)
+            if c.shape[0] == len(mesh.vertices) and not (c[:, :3] == c[0, :3]).all():
+                return c[:, :3].astype(np.float64)
+    except Exception:  # colour is optional; a broken texture must not block the heights
+        return None
+    return None
