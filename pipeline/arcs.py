@@ -1,0 +1,204 @@
+"""Arc fitting for G-code: replace runs of short chords by G2/G3 arcs.
+
+A run of polyline points that lie on one circle (within a tolerance) becomes
+one arc move. The arc must stay within ``tolerance_mm`` of the original
+polyline everywhere: the points' radial deviation plus the chord sagitta
+(how far the arc bulges away from each chord) plus the G-code rounding of the
+centre must fit in the budget. Arcs never cross a thickness jump: the
+per-segment values (sigma or thickness) over one arc may span at most
+``max_value_span``.
+
+Candidates come from the circumcircle of every consecutive point triple
+(vectorised); consecutive triples whose circles agree form runs, and each run
+is verified (and split in halves where it fails) with a Python loop over runs,
+not over points.
+"""
+
+import numpy as np
+
+# Arcs sweeping more than this are split: a near-full circle makes the G-code
+# centre/end ambiguous to some firmware, and half circles lose nothing.
+MAX_SWEEP_RAD = np.pi
+# Below this many chords an arc saves too little to be worth its I/J bytes.
+MIN_SEGMENTS = 3
+# Nearly straight runs are left to G1: their centres are far away and
+# ill-conditioned after rounding, and upstream merging already joined them.
+MAX_RADIUS_MM = 2000.0
+# Centre coordinates (I, J) are written with 3 decimals.
+ROUNDING_MM = 0.5e-3 * np.sqrt(2)
+
+
+def circumcircles(a, b, c):
+    """Circles through point triples.
+
+    Parameters
+    ----------
+    a, b, c : (n, 2) float, mm
+
+    Returns
+    -------
+    centre : (n, 2) float, mm (NaN where collinear)
+    radius : (n,) float, mm (inf where collinear)
+    turn : (n,) float, sign of the turn a->b->c (+1 counter-clockwise)
+    """
+    ab = b - a
+    ac = c - a
+    cross = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
+    d = 2.0 * cross
+    ab2 = np.einsum("ij,ij->i", ab, ab)
+    ac2 = np.einsum("ij,ij->i", ac, ac)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / d
+        uy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / d
+    centre = a + np.stack([ux, uy], axis=1)
+    radius = np.hypot(ux, uy)
+    bad = ~np.isfinite(radius) | (np.abs(cross) < 1e-12)
+    centre[bad] = np.nan
+    radius[bad] = np.inf
+    return centre, radius, np.sign(cross)
+
+
+def _runs(mask):
+    """Start/stop (exclusive) index pairs of True runs in a 1-D bool array."""
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def _check_arc(points, i, j, tol):
+    """Circle through points i..j (inclusive) if it passes, else None.
+
+    Returns ``(centre, radius, ccw, sweep_rad)``.
+    """
+    p = points[i:j + 1]
+    m = (i + j) // 2
+    c, r, turn = circumcircles(points[i:i + 1], points[m:m + 1], points[j:j + 1])
+    r = float(r[0])
+    if not np.isfinite(r) or r > MAX_RADIUS_MM:
+        return None
+    c = c[0]
+    d = p - c
+    dev = np.abs(np.hypot(d[:, 0], d[:, 1]) - r)
+    ang = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    step = np.diff(ang)
+    ccw = turn[0] > 0
+    if ccw and not np.all(step > 0) or (not ccw) and not np.all(step < 0):
+        return None
+    sweep = abs(ang[-1] - ang[0])
+    if sweep > MAX_SWEEP_RAD:
+        return None
+    # Sagitta of the arc over each chord: how far the arc leaves the polyline.
+    sagitta = r * (1.0 - np.cos(np.abs(step) / 2.0))
+    if dev.max() + sagitta.max() + ROUNDING_MM > tol:
+        return None
+    return c, r, bool(ccw), float(sweep)
+
+
+def _fits(points, values, i, j, tol, span):
+    v = values[i:j]
+    if v.max() - v.min() > span:
+        return None
+    return _check_arc(points, i, j, tol)
+
+
+def _greedy(points, values, lo, hi, tol, span):
+    """Longest arcs from left to right over points lo..hi (inclusive).
+
+    Gallops (doubling the span) then bisects for the farthest end that still
+    fits, so a run of n points costs O(n log n) work in O(arcs log n) checks.
+    """
+    out = []
+    i = lo
+    while hi - i >= MIN_SEGMENTS:
+        j = i + MIN_SEGMENTS
+        fit = _fits(points, values, i, j, tol, span)
+        if fit is None:
+            i += 1
+            continue
+        good, step = j, MIN_SEGMENTS
+        bad = None
+        while True:
+            j = min(good + step, hi)
+            if j == good:
+                break
+            f = _fits(points, values, i, j, tol, span)
+            if f is None:
+                bad = j
+                break
+            good, fit = j, f
+            step *= 2
+        if bad is not None:
+            while bad - good > 1:
+                m = (good + bad) // 2
+                f = _fits(points, values, i, m, tol, span)
+                if f is None:
+                    bad = m
+                else:
+                    good, fit = m, f
+        out.append((i, good, fit))
+        i = good
+    return out
+
+
+def fit_arcs(points, values, tolerance_mm, max_value_span):
+    """Group a polyline's segments into arcs and lines.
+
+    Parameters
+    ----------
+    points : (k, 2) float, mm
+        Polyline vertices (one trace).
+    values : (k - 1,) float
+        Per-segment value that must not jump inside an arc (sigma or theta).
+    tolerance_mm : float
+        Largest distance allowed between the arc and the polyline.
+    max_value_span : float
+        Largest max-min of ``values`` over one arc.
+
+    Returns
+    -------
+    ends : (q,) int
+        Index of each move's end point in ``points`` (increasing; last k-1).
+    centre : (q, 2) float, mm
+        Arc centre per move, NaN for straight moves.
+    ccw : (q,) bool
+        Counter-clockwise arc (G3); False for G2 or lines.
+    """
+    points = np.asarray(points, dtype=float)
+    values = np.asarray(values, dtype=float)
+    k = len(points)
+    all_lines = (np.arange(1, k), np.full((k - 1, 2), np.nan), np.zeros(k - 1, bool))
+    if k < MIN_SEGMENTS + 1 or tolerance_mm <= 0:
+        return all_lines
+    _, r, turn = circumcircles(points[:-2], points[1:-1], points[2:])
+    # Triple t spans points t..t+2. Neighbouring triples are arc candidates when
+    # they turn the same way; their own circles are too noisy to compare (short
+    # chords, 1 um rounding), so every arc is verified on its whole span.
+    ok = np.isfinite(r) & (r < MAX_RADIUS_MM)
+    dv = np.abs(np.diff(values))
+    agree = (ok[1:] & ok[:-1] & (turn[1:] == turn[:-1])
+             & (np.maximum(dv[:-1], dv[1:]) <= max_value_span))
+    # Runs of agreeing triple pairs t..u cover points t..u+2.
+    starts, stops = _runs(agree)
+    arcs = []
+    for s, e in zip(starts.tolist(), stops.tolist()):
+        arcs.extend(_greedy(points, values, s, e + 2, tolerance_mm, max_value_span))
+    if not arcs:
+        return all_lines
+    arcs.sort(key=lambda a: a[0])
+    ends, centres, ccws = [], [], []
+    pos = 0
+    for i, j, (cen, _, ccw, _) in arcs:
+        if i < pos:
+            continue
+        ends.extend(range(pos + 1, i + 1))
+        centres.extend([(np.nan, np.nan)] * (i - pos))
+        ccws.extend([False] * (i - pos))
+        ends.append(j)
+        centres.append(tuple(cen))
+        ccws.append(ccw)
+        pos = j
+    ends.extend(range(pos + 1, k))
+    centres.extend([(np.nan, np.nan)] * (k - 1 - pos))
+    ccws.extend([False] * (k - 1 - pos))
+    return (np.asarray(ends, dtype=np.int64), np.asarray(centres, dtype=float).reshape(-1, 2),
+            np.asarray(ccws, dtype=bool))
