@@ -1,0 +1,501 @@
+"""Isoline / gradient-line graph and its triangle mesh (paper 6.1).
+
+1. Equidistant isolines of the guide field (``pipeline.isolines``), clipped to
+   the footprint; the outline itself is the lowest isoline when the footprint
+   edge is level (a dome, an island), else a boundary on which open isoline
+   arcs end (a tile cut from a map).
+2. Gradient lines, band by band: seeds on each isoline (the ends of the lines
+   that arrived from below, plus new seeds where lines diverge) are traced up
+   to the next isoline (``pipeline.gradient``); an isoline no line reached gets
+   lines traced down from it. Their intersections with the isolines are the
+   graph's nodes; edges run along isolines or gradient lines.
+3. The graph's cells (faces of the planar graph, found from the rotation
+   system) are triangulated: cells between two isolines are zipped by the
+   shortest diagonal after upsampling isoline edges to ``l_u``; peak and saddle
+   polygons are fanned around an inserted centre vertex
+   (``pipeline.triangulate``).
+"""
+
+import numpy as np
+import shapely
+
+from pipeline.errors import MeshingError
+from pipeline.geometry import Mesh, signed_areas_2d, unique_edges
+from pipeline.gradient import Snapper, trace
+from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces
+from pipeline.triangulate import ear_clip, fan, zip_strips
+
+
+def build_mesh(hf, isoline_step_mm=1.0, gradient_spacing_mm=2.0, l_u_mm=0.25,
+               flat_slope=0.05):
+    """Mesh a validated height field.
+
+    Parameters
+    ----------
+    hf : HeightField, NaN outside the footprint, no closed depressions
+    isoline_step_mm : float, height between isolines
+    gradient_spacing_mm : float, spacing of gradient lines along an isoline
+    l_u_mm : float, longest printing edge (the paper's l_u)
+    flat_slope : float, ramp of the guide field in flat areas (see isolines)
+
+    Returns
+    -------
+    Mesh
+    """
+    field = GuideField(hf, flat_slope=flat_slope)
+    graph = _Graph(field, isoline_step_mm, gradient_spacing_mm, l_u_mm)
+    graph.trace_bands()
+    return graph.triangulate()
+
+
+class _Graph:
+    def __init__(self, field, dh, d_g, l_u):
+        self.field, self.dh, self.d_g, self.l_u = field, dh, d_g, l_u
+        outline_pts, self.polygon = footprint_outline(field, min(l_u, field.pixel_mm))
+        g_out = field.value(outline_pts)
+        g_in = field.g[field.inside]
+        self.level_outline = bool(np.ptp(g_out) < dh)
+        if self.level_outline:
+            base = float(g_out.max())
+            levels = base + dh * np.arange(1, int((g_in.max() - base) / dh) + 1)
+            self.levels = np.concatenate([[float(g_out.mean())], levels])
+        else:
+            base = float(g_in.min())
+            self.levels = base + dh * np.arange(1, int((g_in.max() - base) / dh) + 1)
+        self.levels = self.levels[self.levels < g_in.max() - 0.02 * dh]
+        if len(self.levels) < 1:
+            raise MeshingError("the height field is too flat to have isolines %.3g mm apart" % dh,
+                               code="mesh.too_flat",
+                               fix="lower mesh.isoline_step_mm or raise height_mm")
+        outline = Piece(outline_pts, True, self.levels[0] if self.level_outline else np.nan,
+                        "outline")
+        iso_levels = self.levels[1:] if self.level_outline else self.levels
+        self.pieces = [outline] + isoline_pieces(field, self.polygon, iso_levels, 2 * l_u)
+        self.level_index = np.array(
+            [-1 if np.isnan(p.level) else int(np.argmin(np.abs(self.levels - p.level)))
+             for p in self.pieces])
+        self.node_xy = []
+        self.piece_t = [[] for _ in self.pieces]   # per piece: arc-length t of its nodes
+        self.piece_n = [[] for _ in self.pieces]   # per piece: node ids
+        self.bridges = []
+        self.connectors = 0
+        self._outline_snap = Snapper(self.pieces, [0])
+        for pid, pc in enumerate(self.pieces):
+            if pc.kind == "iso" and not pc.closed:
+                for end, t in ((pc.points[0], 0.0), (pc.points[-1], pc.length)):
+                    node = self.add_node(pid, t, xy=end)
+                    _, t_out, _ = self._outline_snap.snap(end[None])
+                    self.add_node(0, float(t_out[0]), node=node)
+
+    # -- nodes -------------------------------------------------------------
+    def add_node(self, pid, t, xy=None, node=None, merge_mm=None):
+        """Put a node on piece ``pid`` at ``t``; reuse one within ``merge_mm``."""
+        pc = self.pieces[pid]
+        merge_mm = 0.5 * self.l_u if merge_mm is None else merge_mm
+        ts = self.piece_t[pid]
+        if ts and node is None:
+            d = np.abs(np.asarray(ts) - t)
+            if pc.closed:
+                d = np.minimum(d, pc.length - d)
+            k = int(np.argmin(d))
+            if d[k] < merge_mm:
+                return self.piece_n[pid][k]
+        if node is None:
+            node = len(self.node_xy)
+            self.node_xy.append(pc.at([t])[0] if xy is None else np.asarray(xy, float))
+        ts.append(float(t))
+        self.piece_n[pid].append(node)
+        return node
+
+    def _seeds(self, pid):
+        """Seed parameters on a piece: its nodes thinned to ~d_g, gaps filled."""
+        pc = self.pieces[pid]
+        ts = np.sort(np.asarray(self.piece_t[pid], float))
+        d_g = self.d_g
+        if pc.closed and len(ts) == 0:
+            n = max(1, int(round(pc.length / d_g)))
+            return list(np.arange(n) * pc.length / n)
+        kept = []
+        for t in ts:
+            if pc.kind == "iso" and not pc.closed and (t < 1e-9 or t > pc.length - 1e-9):
+                continue  # an arc's ends lie on the outline: lines from there leave the part
+            if not kept or t - kept[-1] >= 0.5 * d_g:
+                kept.append(t)
+        # Gaps to fill: between kept seeds, and (open pieces) from the ends.
+        if pc.closed:
+            bounds = kept + [kept[0] + pc.length] if kept else []
+        else:
+            bounds = [0.0] + kept + [pc.length]
+        seeds = list(kept)
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            gap = b - a
+            n = int(round(gap / d_g))
+            if n >= 2 or (not pc.closed and (a == 0.0 or b == pc.length) and gap > d_g):
+                n = max(n, 2)
+                inner = a + gap * np.arange(1, n) / n
+                if not pc.closed:
+                    inner = inner[(inner > 0.25 * d_g) & (inner < pc.length - 0.25 * d_g)]
+                seeds.extend(np.mod(inner, pc.length) if pc.closed else inner)
+        return seeds
+
+    # -- gradient lines ----------------------------------------------------
+    def trace_bands(self):
+        li_of = self.level_index
+        by_level = [np.nonzero(li_of == li)[0] for li in range(len(self.levels))]
+        snappers = [Snapper(self.pieces, ids) for ids in by_level]
+        rings = [np.vstack([p.points, p.points[:1]]) if p.closed else p.points for p in self.pieces]
+        self._piece_tree = shapely.STRtree([shapely.LineString(r) for r in rings])
+        self._bridge_lines = []
+        tol = 1.5 * self.field.pixel_mm
+        if not self.level_outline:
+            self._trace_from_sloped_outline(snappers, tol)
+        for li in range(len(self.levels) - 1):
+            src, t_src, tgt = [], [], []
+            for pid in by_level[li]:
+                for t in self._seeds(pid):
+                    src.append(pid)
+                    t_src.append(t)
+            self._connect(src, t_src, self.levels[li + 1], snappers[li + 1], tol)
+            # Isolines no line reached (a new peak past a saddle): trace down from them.
+            orphans = [pid for pid in by_level[li + 1] if not self.piece_t[pid]]
+            src, t_src = [], []
+            for pid in orphans:
+                for t in self._seeds(pid):
+                    src.append(pid)
+                    t_src.append(t)
+            self._connect(src, t_src, self.levels[li], snappers[li], tol)
+            for pid in orphans:
+                if not self.piece_t[pid]:
+                    self._straight_connector(pid, snappers[li])
+
+    def _connect(self, src, t_src, level, snapper, tol):
+        if not src:
+            return
+        src = np.asarray(src)
+        t_src = np.asarray(t_src, float)
+        xy0 = np.stack([self.pieces[p].at([t])[0] for p, t in zip(src, t_src)])
+        xy1, ok = trace(self.field, xy0, level)
+        pid1, t1, dist = snapper.snap(xy1)
+        ok &= (pid1 >= 0) & (dist < tol)
+        src, t_src, pid1, t1, xy0 = src[ok], t_src[ok], pid1[ok], t1[ok], xy0[ok]
+        keep = self._non_crossing(src, t_src, pid1, t1)
+        src, t_src, pid1, t1, xy0 = src[keep], t_src[keep], pid1[keep], t1[keep], xy0[keep]
+        xy1 = np.stack([self.pieces[p].at([t])[0] for p, t in zip(pid1, t1)]) if len(pid1) \
+            else np.zeros((0, 2))
+        keep = self._planar(xy0, xy1)
+        for a, ta, b, tb in zip(src[keep], t_src[keep], pid1[keep], t1[keep]):
+            na = self.add_node(int(a), float(ta))
+            nb = self.add_node(int(b), float(tb))
+            if na != nb:
+                self.bridges.append((na, nb))
+                self._bridge_lines.append(
+                    _shrunk(np.asarray(self.node_xy[na]), np.asarray(self.node_xy[nb])))
+
+    def _planar(self, xy0, xy1):
+        """Keep the straight bridges that cross no isoline, no earlier bridge and no
+        shorter bridge of this batch: the graph must stay planar for its cells."""
+        if len(xy0) == 0:
+            return np.zeros(0, bool)
+        lines = np.array([_shrunk(a, b) for a, b in zip(xy0, xy1)], dtype=object)
+        ok = np.ones(len(lines), bool)
+        hit, _ = self._piece_tree.query(lines, predicate="intersects")
+        ok[hit] = False
+        if self._bridge_lines:
+            hit, _ = shapely.STRtree(self._bridge_lines).query(lines, predicate="intersects")
+            ok[hit] = False
+        cand = np.nonzero(ok)[0]
+        if len(cand) > 1:
+            tree = shapely.STRtree(lines[cand])
+            a, b = tree.query(lines[cand], predicate="intersects")
+            pairs = a != b
+            partners = [[] for _ in cand]
+            for i, j in zip(a[pairs], b[pairs]):
+                partners[i].append(j)
+            length = np.linalg.norm(xy1[cand] - xy0[cand], axis=1)
+            accepted = np.zeros(len(cand), bool)
+            for i in np.argsort(length):
+                if not any(accepted[j] for j in partners[i]):
+                    accepted[i] = True
+            ok[cand[~accepted]] = False
+        return ok
+
+    def _non_crossing(self, pa, ta, pb, tb):
+        """Drop lines whose order on the far isoline reverses their order on the near one."""
+        keep = np.ones(len(pa), bool)
+        for key in set(zip(pa.tolist(), pb.tolist())):
+            sel = np.nonzero((pa == key[0]) & (pb == key[1]))[0]
+            sel = sel[np.argsort(ta[sel])]
+            far = self.pieces[key[1]]
+            last = None
+            for k in sel:
+                if last is not None:
+                    step = tb[k] - last
+                    if far.closed:
+                        step = np.mod(step, far.length)
+                        if step > 0.5 * far.length:
+                            keep[k] = False
+                            continue
+                    elif step < 0:
+                        keep[k] = False
+                        continue
+                last = tb[k]
+        return keep
+
+    def _trace_from_sloped_outline(self, snappers, tol):
+        outline = self.pieces[0]
+        n = max(1, int(round(outline.length / self.d_g)))
+        t = np.arange(n) * outline.length / n
+        xy = outline.at(t)
+        g = self.field.value(xy)
+        li = np.searchsorted(self.levels, g + 0.1 * self.dh)
+        for k in np.unique(li[li < len(self.levels)]):
+            sel = np.nonzero(li == k)[0]
+            self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol)
+
+    def _straight_connector(self, pid, snapper):
+        pc = self.pieces[pid]
+        pb, tb, _ = snapper.snap(pc.points[:1])
+        if pb[0] < 0:
+            pb, tb, _ = self._outline_snap.snap(pc.points[:1])
+        na = self.add_node(pid, 0.0)
+        nb = self.add_node(int(pb[0]), float(tb[0]))
+        self.bridges.append((na, nb))
+        self._bridge_lines.append(_shrunk(np.asarray(self.node_xy[na]),
+                                          np.asarray(self.node_xy[nb])))
+        self.connectors += 1
+
+    # -- triangulation -----------------------------------------------------
+    def triangulate(self):
+        verts = list(self.node_xy)
+        level = [np.nan] * len(verts)
+        he = []            # (from node, to node, piece, vertex list) per half-edge
+        printing = []      # (a, b, isoline id)
+        iso_id = {}
+        for pid, pc in enumerate(self.pieces):
+            if not self.piece_t[pid]:
+                continue
+            is_print = not np.isnan(pc.level)
+            if is_print:
+                iso_id[pid] = len(iso_id)
+            order = np.argsort(self.piece_t[pid])
+            ts = np.asarray(self.piece_t[pid])[order]
+            ns = np.asarray(self.piece_n[pid])[order]
+            m = len(ts)
+            arcs = range(m) if pc.closed else range(m - 1)
+            for k in arcs:
+                ta, tb = ts[k], (ts[k + 1] if k + 1 < m else ts[0] + pc.length)
+                na, nb = int(ns[k]), int(ns[(k + 1) % m])
+                nsub = max(int(np.ceil((tb - ta) / self.l_u - 1e-9)), 1)
+                inner = pc.at(ta + (tb - ta) * np.arange(1, nsub) / nsub)
+                ids = list(range(len(verts), len(verts) + len(inner)))
+                verts.extend(inner)
+                level.extend([pc.level] * len(inner))
+                chain = [na] + ids + [nb]
+                if is_print:
+                    level[na] = level[nb] = pc.level
+                    printing.extend((a, b, iso_id[pid]) for a, b in zip(chain[:-1], chain[1:]))
+                he.append((na, nb, pid, chain[:-1]))
+                he.append((nb, na, pid, chain[::-1][:-1]))
+        for a, b in self.bridges:
+            he.append((a, b, -1, [a]))
+            he.append((b, a, -1, [b]))
+        xy = np.asarray(verts, float)
+        faces_he = _trace_faces(xy, he)
+        return self._assemble(xy, np.asarray(level, float), he, faces_he, printing, iso_id)
+
+    def _assemble(self, xy, level, he, faces_he, printing, iso_id):
+        field = self.field
+        z = field.height(xy)
+        points3 = np.column_stack([xy, z])
+        lowers, uppers, extra_tris = [], [], []
+        centres = []
+        peaks = saddles = 0
+        for cycle in faces_he:
+            ring = np.concatenate([he[h][3] for h in cycle]).astype(np.int64)
+            if _ring_area(xy[ring]) <= 0:
+                continue  # the outer face
+            runs = _main_runs(cycle, he, self.pieces)
+            if len(runs) == 2 and _run_level(runs[0], cycle, he, self.pieces) != \
+                    _run_level(runs[1], cycle, he, self.pieces):
+                lo, up = sorted(runs, key=lambda r: _run_level(r, cycle, he, self.pieces))
+                lower, upper = _split_ring(cycle, he, up)
+                lowers.append(lower)
+                uppers.append(upper)
+                continue
+            if len(runs) == 1 and len(runs[0]) < len(cycle):
+                lower, upper = _split_ring(cycle, he, runs[0], swap=True)
+                if len(upper) == 1:
+                    lowers.append(lower)
+                    uppers.append(upper)
+                    continue
+            cap = len(runs) == 1 and len(runs[0]) == len(cycle)
+            peaks += cap
+            saddles += (not cap) and len(runs) >= 2
+            centre = _peak(field, xy[ring]) if cap else _inner_point(xy[ring])
+            cid = len(xy) + len(centres)
+            tris = fan(xy, ring, cid, centre)
+            if tris is None:
+                tris = ear_clip(xy, ring)
+            else:
+                centres.append(centre)
+            extra_tris.append(tris)
+        if centres:
+            c = np.asarray(centres)
+            xy = np.vstack([xy, c])
+            points3 = np.vstack([points3, np.column_stack([c, field.height(c)])])
+            level = np.concatenate([level, field.value(c)])
+        faces = np.concatenate([zip_strips(points3, lowers, uppers)] + extra_tris)
+        faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+                      & (faces[:, 0] != faces[:, 2])]
+        nan = np.isnan(level)
+        level[nan] = field.value(xy[nan])
+        return _make_mesh(points3, faces, printing, level, self, iso_id,
+                          {"peaks": int(peaks), "saddles": int(saddles),
+                           "connectors": int(self.connectors),
+                           "level_outline": self.level_outline})
+
+
+def _shrunk(a, b, eps_mm=1e-4):
+    """The segment a-b minus a sliver at each end, so touching ends don't intersect."""
+    d = b - a
+    n = max(float(np.hypot(d[0], d[1])), 1e-12)
+    e = min(eps_mm / n, 0.25)
+    return shapely.LineString([a + e * d, b - e * d])
+
+
+def _main_runs(cycle, he, pieces):
+    """Maximal runs of half-edges along one printing isoline, in cycle order."""
+    keys = [he[h][2] if he[h][2] >= 0 and not np.isnan(pieces[he[h][2]].level) else -1
+            for h in cycle]
+    n = len(keys)
+    if all(k == keys[0] for k in keys):
+        return [list(range(n))] if keys[0] >= 0 else []
+    start = next(i for i in range(n) if keys[i] != keys[i - 1])
+    runs, cur = [], []
+    for s in range(n):
+        i = (start + s) % n
+        if cur and keys[i] != keys[cur[-1]]:
+            if keys[cur[-1]] >= 0:
+                runs.append(cur)
+            cur = []
+        cur.append(i)
+    if cur and keys[cur[-1]] >= 0:
+        runs.append(cur)
+    return runs
+
+
+def _run_level(run, cycle, he, pieces):
+    return pieces[he[cycle[run[0]]][2]].level
+
+
+def _split_ring(cycle, he, run, swap=False):
+    """Split a cell's ring into the chain of ``run`` (U) and the rest (L).
+
+    Returns ``(L, U_reversed)`` as ``zip_strips`` wants them; with ``swap``
+    the run is L instead (for cells closed by a single apex vertex).
+    """
+    lens = [len(he[h][3]) for h in cycle]
+    offs = np.concatenate([[0], np.cumsum(lens)])
+    ring = np.concatenate([he[h][3] for h in cycle])
+    n = len(ring)
+    s = offs[run[0]]
+    e = (offs[run[-1] + 1]) % n  # the run's end vertex: first vertex of the next half-edge
+    idx = np.arange(n)
+    chain_u = ring[np.mod(np.arange(s, s + ((e - s) % n) + 1), n)]
+    rest = ring[np.mod(np.arange(e + 1, e + 1 + (n - ((e - s) % n) - 1)), n)]
+    del idx
+    if swap:
+        # The run is the lower chain; the rest (one apex) is the upper.
+        return chain_u, rest[::-1]
+    return rest, chain_u[::-1]
+
+
+def _trace_faces(xy, he):
+    """Faces of the planar graph: cycles of half-edges with the face on the left."""
+    n = len(he)
+    frm = np.array([h[0] for h in he])
+    to = np.array([h[1] for h in he])
+    second = np.array([h[3][1] if len(h[3]) > 1 else h[1] for h in he])
+    d = xy[second] - xy[frm]
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    twin = np.arange(n) ^ 1
+    order = np.lexsort((ang, frm))
+    pos = np.empty(n, dtype=np.int64)
+    counts = np.bincount(frm, minlength=len(xy))
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pos[order] = np.arange(n) - start[frm[order]]
+    tw = twin
+    nxt = order[start[to] + np.mod(pos[tw] - 1, counts[to])]
+    seen = np.zeros(n, bool)
+    faces = []
+    for h0 in range(n):
+        if seen[h0]:
+            continue
+        cyc = []
+        h = h0
+        while not seen[h]:
+            seen[h] = True
+            cyc.append(h)
+            h = nxt[h]
+        faces.append(cyc)
+    return faces
+
+
+def _ring_area(p):
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def _peak(field, ring_xy):
+    """Highest grid point of the guide field inside a closed isoline."""
+    poly = shapely.Polygon(ring_xy)
+    x0, y0, x1, y1 = poly.bounds
+    p = field.pixel_mm
+    xs = np.arange(np.floor(x0 / p), np.ceil(x1 / p) + 1) * p
+    ys = np.arange(np.floor(y0 / p), np.ceil(y1 / p) + 1) * p
+    X, Y = np.meshgrid(xs, ys)
+    inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
+    if not inside.any():
+        return _inner_point(ring_xy)
+    cand = np.column_stack([X.ravel()[inside], Y.ravel()[inside]])
+    return cand[int(np.argmax(field.value(cand)))]
+
+
+def _inner_point(ring_xy):
+    poly = shapely.Polygon(ring_xy)
+    c = poly.centroid
+    if not poly.contains(c):
+        c = poly.point_on_surface()
+    return np.array([c.x, c.y])
+
+
+def _make_mesh(points3, faces, printing, level, graph, iso_id, info):
+    faces = np.asarray(faces, dtype=np.int64)
+    used = np.zeros(len(points3), bool)
+    used[faces.ravel()] = True
+    remap = np.cumsum(used) - 1
+    faces = remap[faces]
+    points3 = points3[used]
+    level = level[used]
+    flipped = signed_areas_2d(points3, faces) <= 0
+    edges = unique_edges(faces)
+    pr = np.asarray(printing, dtype=np.int64).reshape(-1, 3)
+    pr = pr[used[pr[:, 0]] & used[pr[:, 1]]]
+    pe = np.sort(remap[pr[:, :2]], axis=1)
+    n = len(points3)
+    key_e = edges[:, 0] * n + edges[:, 1]
+    key_p, first = np.unique(pe[:, 0] * n + pe[:, 1], return_index=True)
+    is_print = np.isin(key_e, key_p)
+    printing_edges = edges[is_print]
+    pos = np.searchsorted(key_p, key_e[is_print])
+    printing_isoline = pr[first[pos], 2]
+    ids = sorted(iso_id, key=iso_id.get)
+    info = dict(info)
+    info.update({"isolines": len(ids), "flipped_faces": int(flipped.sum()),
+                 "open_isolines": int(sum(not graph.pieces[p].closed for p in ids))})
+    return Mesh(vertices=points3, faces=faces, printing_edges=printing_edges,
+                bridge_edges=edges[~is_print], vertex_level=level,
+                printing_isoline=printing_isoline,
+                isoline_level=np.array([graph.pieces[p].level for p in ids]),
+                isoline_closed=np.array([graph.pieces[p].closed for p in ids]),
+                info=info)
