@@ -1,0 +1,17 @@
+"""Printer link: a Marlin host-protocol driver and a Marlin-like simulator.
+
+Public entry points:
+
+- :class:`hostd.printer.link.Printer` -- the driver (own thread, flow control, resends,
+  pause/resume/cancel/estop, temperatures, events).
+- :class:`hostd.printer.settings.LinkSettings` -- baud, timeouts and the profile's scripts.
+- :class:`hostd.printer.sim.Simulator` / :class:`hostd.printer.simconfig.SimConfig` -- the
+  simulated printer behind a real pseudo-terminal (``sim://`` ports, ``hostd sim-printer``).
+- :class:`hostd.printer.errors.PrinterError` -- the one exception family, with a stable ``code``.
+"""
+
+from hostd.printer.errors import PrinterError
+from hostd.printer.settings import LinkSettings
+from hostd.printer.link import Printer
+
+__all__ = ["Printer", "LinkSettings", "PrinterError"]

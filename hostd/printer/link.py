@@ -1,0 +1,675 @@
+"""The printer driver: one thread that owns the serial link and streams jobs.
+
+Every public method may be called from any thread; they post a request to the driver
+thread and wait for it to be accepted, so all protocol state lives in one thread and a
+busy caller (path planning, the web server) can never stall the stream. Only
+:meth:`Printer.estop` writes to the port directly, bypassing queue and flow control.
+
+States (``Printer.state``): ``disconnected``, ``connecting``, ``idle``, ``printing``,
+``heating`` (printing, waiting on M109/M190), ``paused``, ``error`` (firmware error or
+emergency stop: connect again to reset the board).
+
+Events (callback ``on_event(event)`` in the driver thread -- keep it short -- and
+queues from :meth:`Printer.subscribe`): :class:`Event` with ``kind`` in ``state``,
+``job`` (started/finished with the job snapshot), ``progress``, ``temperature``,
+``resend``, ``timeout``, ``firmware_error`` (verbatim ``Error:`` line), ``log``
+(``echo:`` and other firmware chatter), ``estop``, ``connected``.
+"""
+
+import queue
+import threading
+import time
+from collections import OrderedDict, deque
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+
+import serial
+
+from hostd.printer import protocol
+from hostd.printer.errors import PrinterError
+from hostd.printer.handshake import handshake
+from hostd.printer.job import CANCELLED, CANCELLING, DONE, ERROR, INTERRUPTED, Job
+from hostd.printer.job import PAUSED, PAUSING, PRINTING
+from hostd.printer.settings import LinkSettings, script_lines
+from hostd.printer.temps import TemperatureLog
+from hostd.printer.transport import Reader, close_port, open_port
+
+DISCONNECTED, CONNECTING, IDLE, HEATING, ERROR_STATE = "disconnected", "connecting", "idle", "heating", "error"
+_BLOCKING_HEAT = ("M109", "M190", "M191")
+_FATAL_WORDS = ("halted", "kill", "stopped")
+
+
+@dataclass
+class Event:
+    kind: str
+    data: dict = field(default_factory=dict)
+    time: float = field(default_factory=time.time)
+
+
+@dataclass
+class Sent:
+    """One numbered line: its wire bytes and where it came from."""
+
+    n: int
+    data: bytes
+    command: str
+    origin: tuple    # ("job", file line) / ("script", name) / ("poll",) / ("probe",) / ("user",)
+
+
+class Printer:
+    """Marlin host-protocol driver (see module docstring).
+
+    ``port``: device path, pyserial URL or ``sim://?...``. With ``sim://`` the simulator
+    runs in this process and is available as ``printer.simulator``.
+    """
+
+    def __init__(self, port, settings=None, on_event=None):
+        self.port_url = port
+        self.settings = settings or LinkSettings()
+        self.on_event = on_event
+        self.simulator = None
+        if port.startswith("sim://"):
+            from hostd.printer.sim import Simulator
+            from hostd.printer.simconfig import SimConfig
+            self.simulator = Simulator(SimConfig.from_url(port), baud=self.settings.baud)
+            self.simulator.start()
+        self.temperatures = TemperatureLog(self.settings.temp_history)
+        self.capabilities = {}
+        self.firmware_info = {}
+        self.job = None
+        self.last_error = None
+        self.stats = dict(lines_sent=0, bytes_sent=0, resends=0, lines_resent=0, timeouts=0,
+                          max_in_flight_lines=0, max_in_flight_bytes=0, oks=0)
+        self._state = DISCONNECTED
+        self._inbox = queue.Queue()
+        self._subscribers = []
+        self._write_lock = threading.Lock()
+        self._serial = None
+        self._reader = None
+        self._generation = 0
+        self._thread = None
+        self._closing = False
+        self._byte_s = 10.0 / self.settings.baud
+        self._reset_stream()
+
+    # -- public API (any thread) ---------------------------------------------------------
+
+    @property
+    def state(self):
+        return self._state
+
+    def connect(self, timeout_s=None):
+        """Open the port, handshake, and return when idle; raises PrinterError."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="hostd-link", daemon=True)
+            self._thread.start()
+        budget = timeout_s or (self.settings.open_timeout_s + self.settings.reset_wait_s
+                               + self.settings.handshake_timeout_s * (self.settings.handshake_attempts + 3))
+        return self._call("connect", timeout_s=budget)
+
+    def start(self, source, job_id=None):
+        """Start streaming a file path, or an iterable of G-code lines; returns the Job."""
+        job = Job(source, job_id)
+        return self._call("start", job)
+
+    def pause(self):
+        """Stop feeding the job, then run the pause (park) script; heaters stay on."""
+        return self._call("pause")
+
+    def resume(self):
+        """Run the resume (unpark) script, then continue with the exact next job line."""
+        return self._call("resume")
+
+    def cancel(self):
+        """Stop feeding the job, then run the cancel script (heaters off, lift, motors off)."""
+        return self._call("cancel")
+
+    def send(self, command):
+        """Queue one out-of-band command (console); it goes before further job lines."""
+        return self._call("send", command)
+
+    def estop(self):
+        """Emergency stop: write M112 now, ahead of everything queued; returns the time sent."""
+        port = self._serial
+        if port is None:
+            raise PrinterError("state", "not connected")
+        with self._write_lock:
+            try:
+                port.write(b"M112\n")
+                port.flush()
+            except (serial.SerialException, OSError) as exc:
+                raise PrinterError("port", "emergency stop could not be written: %s" % exc) from exc
+            sent_at = time.monotonic()
+        self._inbox.put(("call", "estop", (), None))
+        return sent_at
+
+    def wait(self, timeout_s=None):
+        """Wait for the current job to finish; returns its snapshot (None on timeout)."""
+        job = self.job
+        if job is None:
+            return None
+        return job.snapshot() if job.wait(timeout_s) else None
+
+    def progress(self):
+        """Job progress: confirmed/total lines and bytes (empty dict without a job)."""
+        job = self.job
+        return job.snapshot() if job else {}
+
+    def subscribe(self, maxsize=10000):
+        """A queue receiving every Event from now on (oldest dropped when full)."""
+        events = queue.Queue(maxsize)
+        self._subscribers.append(events)
+        return events
+
+    def close(self):
+        """Disconnect and stop the driver thread (and the in-process simulator)."""
+        self._closing = True
+        if self._thread is not None:
+            self._inbox.put(("call", "close", (), None))
+            self._thread.join(5)
+        self._drop_port()
+        if self.simulator is not None:
+            self.simulator.stop()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- plumbing ------------------------------------------------------------------------
+
+    def _call(self, name, *args, timeout_s=10.0):
+        if self._thread is None:
+            raise PrinterError("state", "not connected (call connect() first)")
+        future = Future()
+        self._inbox.put(("call", name, args, future))
+        try:
+            return future.result(timeout_s)
+        except TimeoutError:
+            raise PrinterError("timeout", "%s: driver did not answer in %.1f s" % (name, timeout_s)) from None
+
+    def _emit(self, kind, **data):
+        event = Event(kind, data)
+        if self.on_event is not None:
+            self.on_event(event)
+        for events in self._subscribers:
+            try:
+                events.put_nowait(event)
+            except queue.Full:
+                try:
+                    events.get_nowait()
+                    events.put_nowait(event)
+                except (queue.Empty, queue.Full):
+                    pass
+
+    def _set_state(self, state):
+        if state != self._state:
+            self._state = state
+            self._emit("state", state=state)
+
+    def _reset_stream(self):
+        """Forget the line-level state (new connection: the firmware starts at N0)."""
+        self._history = OrderedDict()
+        self._next_n = 1
+        self._cursor = 1
+        self._fifo = deque()
+        self._fifo_bytes = 0
+        self._limbo = []
+        self._error_acks = 0
+        self._resync_target = None
+        self._resync_until = 0.0
+        self._priority = deque()
+        self._last_rx = time.monotonic()
+        self._timeouts = 0
+        self._capacity = 1
+        self._next_poll = 0.0
+        self._last_progress = 0.0
+
+    # -- driver thread -------------------------------------------------------------------
+
+    def _run(self):
+        reconnect_at = None
+        while True:
+            now = time.monotonic()
+            if reconnect_at is not None and now >= reconnect_at:
+                reconnect_at = None
+                try:
+                    self._connect()
+                    self._emit("connected", reconnected=True)
+                except PrinterError as exc:
+                    self.last_error = str(exc)
+                    reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
+            try:
+                item = self._inbox.get(timeout=self._wait_s(now, reconnect_at))
+            except queue.Empty:
+                item = None
+            try:
+                if item is not None:
+                    if self._dispatch(item) == "close":
+                        return
+                    # Drain what is already there before writing: cheaper and keeps order.
+                    while True:
+                        try:
+                            item = self._inbox.get_nowait()
+                        except queue.Empty:
+                            break
+                        if self._dispatch(item) == "close":
+                            return
+                self._tick()
+                self._pump()
+            except _PortLost as lost:
+                self._lost(str(lost))
+                if self.settings.reconnect and not self._closing:
+                    reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
+
+    def _wait_s(self, now, reconnect_at):
+        deadlines = [now + 0.5]
+        if reconnect_at is not None:
+            deadlines.append(reconnect_at)
+        if self._serial is not None:
+            if self._fifo:
+                deadlines.append(self._last_rx + self.settings.ok_timeout_s)
+            if self._resync_until > now:
+                deadlines.append(self._resync_until)
+            if self._next_poll and not self.capabilities.get("AUTOREPORT_TEMP"):
+                deadlines.append(self._next_poll)
+        return max(0.0, min(deadlines) - now)
+
+    def _dispatch(self, item):
+        kind = item[0]
+        if kind == "call":
+            _, name, args, future = item
+            if name == "close":
+                if future:
+                    future.set_result(None)
+                return "close"
+            try:
+                result = getattr(self, "_do_" + name)(*args)
+            except PrinterError as exc:
+                if future:
+                    future.set_exception(exc)
+            except _PortLost as exc:
+                if future:
+                    future.set_exception(PrinterError("port", str(exc)))
+                raise
+            else:
+                if future:
+                    future.set_result(result)
+        elif item[1] != self._generation:
+            return None  # news from a connection we already dropped
+        elif kind == "reply":
+            self._on_reply(item[2], item[3])
+        elif kind == "lost":
+            raise _PortLost(item[2])
+        return None
+
+    # -- connection ----------------------------------------------------------------------
+
+    def _do_connect(self):
+        if self._state not in (DISCONNECTED, ERROR_STATE, IDLE):
+            raise PrinterError("state", "cannot connect while %s" % self._state)
+        self._connect()
+        self._emit("connected", reconnected=False)
+        return self.firmware_info
+
+    def _connect(self):
+        self._drop_port()
+        self._set_state(CONNECTING)
+        self._reset_stream()
+        deadline = time.monotonic() + self.settings.open_timeout_s
+        while True:
+            try:
+                port = open_port(self.port_url, self.settings.baud, self.simulator)
+                break
+            except PrinterError:
+                if time.monotonic() > deadline:
+                    self._set_state(DISCONNECTED)
+                    raise
+                time.sleep(0.1)
+        self._generation += 1
+        self._serial = port
+        self._reader = Reader(port, self._inbox, self._generation)
+        self._reader.start()
+        try:
+            result = handshake(self, port)
+        except PrinterError:
+            self._drop_port()
+            self._set_state(DISCONNECTED)
+            raise
+        self.capabilities = result.capabilities
+        self.firmware_info = result.firmware
+        self._next_n = self._cursor = result.next_n
+        for n, data, command in result.sent:
+            self._history[n] = Sent(n, data, command, ("host",))
+        advanced = self.settings.send_ahead and self.capabilities.get("ADVANCED_OK")
+        if self.settings.max_in_flight_lines:
+            self._capacity = self.settings.max_in_flight_lines if advanced else 1
+        else:
+            self._capacity = (result.max_buffer_free + 1) if advanced and result.max_buffer_free else 1
+        self._last_rx = time.monotonic()
+        self._next_poll = time.monotonic()
+        self.last_error = None
+        self._set_state(IDLE)
+
+    def _drop_port(self):
+        port, self._serial = self._serial, None
+        if self._reader is not None:
+            self._reader.stopping = True
+        if port is not None:
+            close_port(port)
+        self._generation += 1
+
+    def _lost(self, reason):
+        """The port failed: the job (if any) is interrupted where it was confirmed."""
+        self._drop_port()
+        self.last_error = reason
+        self._finish_job(INTERRUPTED, reason)
+        self._set_state(DISCONNECTED)
+
+    # -- requests ------------------------------------------------------------------------
+
+    def _require_connected(self):
+        if self._serial is None or self._state in (DISCONNECTED, CONNECTING, ERROR_STATE):
+            raise PrinterError("state", "printer is %s" % self._state)
+
+    def _do_start(self, job):
+        self._require_connected()
+        if self.job is not None and self.job.result is None:
+            raise PrinterError("state", "a job is already running (%s)" % self.job.id)
+        self.job = job
+        self._set_state(PRINTING)
+        self._emit("job", event="started", job=job.snapshot())
+        return job
+
+    def _active_job(self):
+        job = self.job
+        if job is None or job.result is not None:
+            raise PrinterError("state", "no job is running")
+        return job
+
+    def _do_pause(self):
+        job = self._active_job()
+        if job.phase == PRINTING:
+            job.phase = PAUSING
+            self._queue_script("pause", self.settings.pause_gcode)
+        return job.phase
+
+    def _do_resume(self):
+        job = self._active_job()
+        if job.phase in (PAUSING, PAUSED):
+            self._queue_script("resume", self.settings.resume_gcode)
+            job.phase = PRINTING
+            self._set_state(PRINTING)
+        return job.phase
+
+    def _do_cancel(self):
+        job = self._active_job()
+        if job.phase != CANCELLING:
+            job.phase = CANCELLING
+            self._queue_script("cancel", self.settings.cancel_gcode)
+        return job.phase
+
+    def _do_send(self, command):
+        self._require_connected()
+        command = protocol.clean(command)
+        if command:
+            self._priority.append((command, ("user",)))
+
+    def _do_estop(self):
+        self._finish_job(ERROR, "emergency stop")
+        self.last_error = "emergency stop (M112)"
+        self._priority.clear()
+        self._emit("estop")
+        self._set_state(ERROR_STATE)
+
+    def _queue_script(self, name, text):
+        for command in script_lines(text):
+            self._priority.append((command, ("script", name)))
+
+    def _finish_job(self, result, error=None):
+        job = self.job
+        if job is not None and job.finish(result, error):
+            self._emit("job", event="finished", job=job.snapshot())
+
+    # -- receiving -----------------------------------------------------------------------
+
+    def _on_reply(self, reply, at):
+        self._last_rx = at
+        kind = reply.kind
+        if reply.temps:
+            self.temperatures.update(reply.temps, time.time())
+            self._emit("temperature", temps=self.temperatures.current())
+        if kind == protocol.OK:
+            self._on_ok(reply)
+        elif kind == protocol.RESEND:
+            self._on_resend(reply.line, at)
+        elif kind == protocol.ERROR:
+            if protocol.is_resend_error(reply.text):
+                if self._resync_until > at:
+                    self._resync_until = at + self._quiet_s()
+            else:
+                self._on_firmware_error(reply.text)
+        elif kind == protocol.START:
+            if self._state not in (CONNECTING, ERROR_STATE):
+                raise _PortLost("printer reset unexpectedly (got 'start')")
+        elif kind in (protocol.ECHO, protocol.OTHER, protocol.BUSY, protocol.FIRMWARE):
+            if kind != protocol.BUSY:
+                self._emit("log", text=reply.text)
+
+    def _on_ok(self, reply):
+        self.stats["oks"] += 1
+        if self._error_acks:
+            self._error_acks -= 1   # the ok that follows a Resend: nothing was executed
+            return
+        self._timeouts = 0
+        popped = None
+        if reply.line is not None:
+            if any(s.n == reply.line for s in self._fifo):
+                # ADVANCED_OK names the line: anything older whose ok got lost is done too.
+                while self._fifo:
+                    popped = self._pop()
+                    self._confirm(popped)
+                    if popped.n == reply.line:
+                        break
+            elif any(s.n == reply.line for s in self._limbo):
+                popped = next(s for s in self._limbo if s.n == reply.line)
+                self._confirm(popped)
+                self._limbo.remove(popped)
+            # else: an answer for a line we no longer wait for (already resolved).
+        elif self._fifo:
+            popped = self._pop()
+            self._confirm(popped)
+        elif self._limbo:
+            popped = self._limbo.pop(0)   # a late answer after a timeout
+            self._confirm(popped)
+        if popped is not None and self._limbo:
+            # The firmware took line n only after n-1: everything older was accepted.
+            for sent in [s for s in self._limbo if s.n < popped.n]:
+                self._confirm(sent)
+            self._limbo = [s for s in self._limbo if s.n > popped.n]
+        self._after_progress()
+
+    def _pop(self):
+        sent = self._fifo.popleft()
+        self._fifo_bytes -= len(sent.data)
+        return sent
+
+    def _confirm(self, sent):
+        job = self.job
+        if sent.origin[0] == "job" and job is not None and job.result is None:
+            job.confirmed += 1
+            job.last_confirmed_line = sent.origin[1]
+            job.bytes_confirmed += len(sent.data)
+
+    def _on_resend(self, line, at):
+        self._error_acks += 1
+        if line not in self._history and line != self._next_n:
+            self._fatal("resend", "firmware asked for line %d which is no longer in history" % line)
+            return
+        # Lines before `line` were accepted (they will still get their own ok); the rest
+        # in flight are dropped by the firmware or will each be rejected.
+        for sent in [s for s in self._limbo if s.n < line]:
+            self._confirm(sent)
+        self._limbo = []
+        kept = deque(s for s in self._fifo if s.n < line)
+        self._fifo_bytes = sum(len(s.data) for s in kept)
+        doomed = len(self._fifo) - len(kept)
+        self._fifo = kept
+        if self._resync_target == line and at < self._resync_until:
+            self._resync_until = at + self._quiet_s()   # another echo of the same request
+            return
+        self.stats["resends"] += 1
+        if self.job is not None and self.job.result is None:
+            self.job.resends += 1
+        self._cursor = line
+        self._resync_target = line
+        # Only wait for stragglers when more than the offending line was in flight.
+        self._resync_until = at + self._quiet_s() if doomed > 1 else at
+        self._emit("resend", line=line)
+
+    def _quiet_s(self):
+        return max(self.settings.resend_quiet_s, 3 * self.settings.rx_buffer_bytes * self._byte_s)
+
+    def _on_firmware_error(self, text):
+        self._emit("firmware_error", message=text)
+        if self._state == ERROR_STATE:
+            return
+        self.last_error = text
+        self._finish_job(ERROR, text)
+        self._priority.clear()
+        self._set_state(ERROR_STATE)
+        if not any(word in text.lower() for word in _FATAL_WORDS):
+            self._queue_script("error", self.settings.error_gcode)  # it still listens
+
+    def _fatal(self, code, message):
+        self.last_error = "%s: %s" % (code, message)
+        self._finish_job(ERROR, message)
+        self._priority.clear()
+        self._set_state(ERROR_STATE)
+
+    # -- sending -------------------------------------------------------------------------
+
+    def _tick(self):
+        """Timers: answer timeout recovery and temperature polling."""
+        if self._serial is None:
+            return
+        now = time.monotonic()
+        if (self._fifo or self._error_acks) and now - self._last_rx >= self.settings.ok_timeout_s:
+            self._timeouts += 1
+            self.stats["timeouts"] += 1
+            self._emit("timeout", count=self._timeouts, in_flight=len(self._fifo))
+            if self._timeouts > self.settings.max_timeouts:
+                self._fatal("timeout", "printer not responding: no answer for %.1f s, %d recoveries failed"
+                            % (self.settings.ok_timeout_s, self._timeouts - 1))
+                self._fifo.clear()
+                self._fifo_bytes = 0
+                return
+            # OctoPrint's recovery: whatever was in flight lost its answer; probe with a
+            # numbered M105 -- accepted means those lines got through, Resend means not.
+            self._limbo += list(self._fifo)
+            self._fifo.clear()
+            self._fifo_bytes = 0
+            self._error_acks = 0
+            self._priority.appendleft(("M105", ("probe",)))
+            self._last_rx = now
+        if (self._next_poll and now >= self._next_poll and self._state != ERROR_STATE
+                and not self.capabilities.get("AUTOREPORT_TEMP")):
+            self._next_poll = now + self.settings.temp_poll_s
+            if not any(origin[0] in ("poll", "probe") for _, origin in self._priority):
+                self._priority.append(("M105", ("poll",)))
+
+    def _next_line(self):
+        """(Sent, is_new) to transmit next, or None."""
+        if self._cursor < self._next_n:
+            return self._history[self._cursor], False
+        if self._priority:
+            command, origin = self._priority[0]
+        else:
+            job = self.job
+            if job is None or job.result is not None or job.phase != PRINTING:
+                return None
+            item = job.peek()
+            if item is None:
+                return None
+            command, origin = item[1], ("job", item[0])
+        return Sent(self._next_n, protocol.frame(self._next_n, command), command, origin), True
+
+    def _pump(self):
+        """Send as much as flow control allows."""
+        if self._serial is None or time.monotonic() < self._resync_until:
+            self._after_progress()
+            return
+        if self._state == ERROR_STATE and not self._priority and self._cursor >= self._next_n:
+            return
+        while True:
+            if self._fifo and (len(self._fifo) >= self._capacity or self._error_acks):
+                break
+            nxt = self._next_line()
+            if nxt is None:
+                break
+            sent, new = nxt
+            if self._fifo and self._fifo_bytes + len(sent.data) > self.settings.rx_buffer_bytes:
+                break
+            if new:
+                if self._priority:
+                    self._priority.popleft()
+                else:
+                    self.job.take()
+                self._history[sent.n] = sent
+                if len(self._history) > self.settings.history_lines:
+                    self._history.popitem(last=False)
+                self._next_n += 1
+            else:
+                self.stats["lines_resent"] += 1
+            self._cursor = sent.n + 1
+            self._transmit(sent)
+        self._after_progress()
+
+    def _transmit(self, sent):
+        with self._write_lock:
+            try:
+                self._serial.write(sent.data)
+            except (serial.SerialException, OSError) as exc:
+                raise _PortLost("write failed: %s" % exc) from exc
+        self._fifo.append(sent)
+        self._fifo_bytes += len(sent.data)
+        stats = self.stats
+        stats["lines_sent"] += 1
+        stats["bytes_sent"] += len(sent.data)
+        stats["max_in_flight_lines"] = max(stats["max_in_flight_lines"], len(self._fifo))
+        stats["max_in_flight_bytes"] = max(stats["max_in_flight_bytes"], self._fifo_bytes)
+        if self.job is not None and self.job.result is None:
+            self.job.bytes_sent += len(sent.data)
+        if not self._fifo or len(self._fifo) == 1:
+            self._last_rx = time.monotonic()   # the answer timeout starts with the first line
+
+    def _settled(self):
+        return (not self._fifo and not self._priority and not self._limbo
+                and self._cursor >= self._next_n and not self._error_acks)
+
+    def _after_progress(self):
+        """Phase changes that happen once everything sent has been answered."""
+        job = self.job
+        if job is not None and job.result is None:
+            settled = self._settled()
+            if job.phase == PRINTING and settled and job.peek() is None:
+                self._finish_job(DONE)
+                self._set_state(IDLE)
+            elif job.phase == PAUSING and settled:
+                job.phase = PAUSED
+                self._set_state(PAUSED)
+            elif job.phase == CANCELLING and settled:
+                self._finish_job(CANCELLED)
+                self._set_state(IDLE)
+            elif job.phase == PRINTING and self._state in (PRINTING, HEATING):
+                head = self._fifo[0].command[:4] if self._fifo else ""
+                self._set_state(HEATING if head in _BLOCKING_HEAT else PRINTING)
+            now = time.monotonic()
+            if job.result is None and now - self._last_progress >= self.settings.progress_interval_s:
+                self._last_progress = now
+                self._emit("progress", **job.snapshot())
+
+
+class _PortLost(Exception):
+    """Internal: the port failed or the board reset; handled in the driver loop."""

@@ -1,0 +1,85 @@
+"""Opening ports and reading replies: the byte-level side of the link.
+
+Ports: device paths (``/dev/ttyUSB0``, ``/dev/serial/by-id/..``), pyserial URLs
+(``socket://host:port`` for ser2net-style servers, ``rfc2217://host:port``) and
+``sim://?options`` for the built-in simulator (see :mod:`hostd.printer.simconfig`).
+"""
+
+import threading
+import time
+
+import serial
+
+from hostd.printer import protocol
+from hostd.printer.errors import PrinterError
+
+READ_TIMEOUT_S = 0.1
+WRITE_TIMEOUT_S = 5.0
+MAX_PARTIAL_BYTES = 4096   # noise without a newline is dropped beyond this
+
+
+def open_port(url, baud, simulator=None):
+    """Open ``url`` (or the simulator's current pty) and return a pyserial object."""
+    target = url
+    if url.startswith("sim://"):
+        target = simulator.wait_port()
+    try:
+        port = serial.serial_for_url(target, baudrate=baud, timeout=READ_TIMEOUT_S,
+                                     write_timeout=WRITE_TIMEOUT_S)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise PrinterError("port", "cannot open %s: %s" % (url, exc)) from exc
+    return port
+
+
+def close_port(port):
+    """Close without raising: the port may already be gone (unplugged)."""
+    try:
+        if hasattr(port, "cancel_read"):
+            port.cancel_read()
+    except Exception:
+        pass
+    try:
+        port.close()
+    except Exception:
+        pass
+
+
+class Reader(threading.Thread):
+    """Reads lines from the port and posts ``("reply", generation, Reply, time)`` to ``inbox``.
+
+    On a read failure it posts ``("lost", generation, reason)`` once and ends; the
+    generation lets the driver ignore news from a connection it has already dropped.
+    """
+
+    def __init__(self, port, inbox, generation):
+        super().__init__(name="hostd-link-reader", daemon=True)
+        self.port = port
+        self.inbox = inbox
+        self.generation = generation
+        self.stopping = False
+
+    def run(self):
+        partial = bytearray()
+        port = self.port
+        while not self.stopping:
+            try:
+                waiting = port.in_waiting
+                data = port.read(waiting or 1)
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                if not self.stopping:
+                    self.inbox.put(("lost", self.generation, "port lost: %s" % exc))
+                return
+            if not data:
+                continue
+            partial += data
+            now = time.monotonic()
+            while True:
+                cut = partial.find(b"\n")
+                if cut < 0:
+                    break
+                raw = bytes(partial[:cut])
+                del partial[:cut + 1]
+                if raw.strip():
+                    self.inbox.put(("reply", self.generation, protocol.parse_reply(raw), now))
+            if len(partial) > MAX_PARTIAL_BYTES:
+                partial.clear()
