@@ -88,9 +88,14 @@ class SimConfig:
         return cls(**values)
 
     @classmethod
-    def add_arguments(cls, parser):
-        """Add one ``--option VALUE`` flag per field to an argparse parser."""
+    def add_arguments(cls, parser, exclude=("baud",)):
+        """Add one ``--option VALUE`` flag per field to an argparse parser.
+
+        ``baud`` is left out by default: ``hostd sim-printer --baud`` is its own flag.
+        """
         for f in dataclasses.fields(cls):
+            if f.name in exclude:
+                continue
             parser.add_argument("--" + f.name.replace("_", "-"), dest="sim_" + f.name,
                                 default=None, metavar=_type_name(f.type),
                                 help="simulator option %s (default %s)" % (f.name, f.default))
