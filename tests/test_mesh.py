@@ -1,0 +1,110 @@
+"""Meshing (paper 6.1): isolines + gradient lines -> a disk-topology triangle mesh."""
+
+import numpy as np
+import pytest
+
+from conftest import reference_mesh
+from pipeline import shapes
+from pipeline.geometry import face_areas, signed_areas_2d, unique_edges
+from pipeline.gradient import trace
+from pipeline.isolines import GuideField
+from pipeline.triangulate import zip_strips
+
+SHAPES = ["dome", "elongated_peak", "saddle", "three_islands", "starfish", "terrain_tile"]
+
+
+def boundary_loops(faces):
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    return u, c
+
+
+@pytest.mark.parametrize("name", SHAPES)
+def test_mesh_is_a_clean_disk_covering_the_footprint(name):
+    m = reference_mesh(name)
+    hf = shapes.REFERENCE[name]()
+    edges, count = boundary_loops(m.faces)
+    assert count.max() <= 2, "non-manifold edges"
+    # Disk topology: Euler characteristic V - E + F = 1.
+    assert len(m.vertices) - len(edges) + len(m.faces) == 1
+    assert (signed_areas_2d(m.vertices, m.faces) > 0).all(), "folded triangles"
+    footprint = np.isfinite(hf.z).sum() * hf.pixel_mm ** 2
+    assert face_areas(m.vertices[:, :2], m.faces).sum() == pytest.approx(footprint, rel=0.01)
+    # Every edge is exactly one of printing / bridge.
+    both = np.concatenate([m.printing_edges, m.bridge_edges])
+    assert len(np.unique(both, axis=0)) == len(both) == len(unique_edges(m.faces))
+
+
+@pytest.mark.parametrize("name", SHAPES)
+def test_printing_edges_run_along_isolines_and_are_upsampled(name):
+    m = reference_mesh(name)
+    pe = m.printing_edges
+    length = np.linalg.norm(m.vertices[pe[:, 0], :2] - m.vertices[pe[:, 1], :2], axis=1)
+    assert length.max() <= 0.25 + 1e-6
+    # Both ends of a printing edge carry the isoline's value.
+    lev = m.isoline_level[m.printing_isoline]
+    assert np.allclose(m.vertex_level[pe[:, 0]], lev) and np.allclose(m.vertex_level[pe[:, 1]], lev)
+    # Bridge edges join different isolines (or an inserted centre/boundary vertex).
+    be = m.bridge_edges
+    assert (m.vertex_level[be[:, 0]] != m.vertex_level[be[:, 1]]).mean() > 0.99
+
+
+@pytest.mark.parametrize("name,peaks,saddles", [
+    ("dome", 1, 0), ("elongated_peak", 1, 0), ("starfish", 1, 0),
+    ("saddle", 2, 1), ("three_islands", 3, 2)])
+def test_peaks_and_saddles_are_found(name, peaks, saddles):
+    info = reference_mesh(name).info
+    assert info["peaks"] == peaks
+    assert info["saddles"] == saddles
+
+
+def test_tile_cut_from_a_map_has_open_isoline_arcs():
+    m = reference_mesh("terrain_tile")
+    assert m.info["level_outline"] is False
+    assert (~m.isoline_closed).sum() >= 5
+    assert m.isoline_closed.sum() >= 1  # the hill top still closes
+
+
+def test_dome_isolines_are_circles_of_the_right_radius():
+    hf = shapes.dome()
+    m = reference_mesh("dome")
+    rho = shapes.dome_radius_mm()
+    centre = np.array([(hf.z.shape[1] - 1) / 2, (hf.z.shape[0] - 1) / 2]) * hf.pixel_mm
+    for iso in range(1, len(m.isoline_level), 5):
+        v = np.unique(m.printing_edges[m.printing_isoline == iso])
+        r = np.linalg.norm(m.vertices[v, :2] - centre, axis=1)
+        z = m.vertices[v, 2]
+        # Height on the sphere matches the radius (within the grid's bilinear error).
+        expected = np.sqrt(rho ** 2 - r ** 2) - (rho - 25.0)
+        assert np.abs(z - expected).max() < 0.05
+        assert r.std() < 0.05
+
+
+def test_gradient_lines_land_on_the_target_level():
+    hf = shapes.dome()
+    field = GuideField(hf)
+    rng = np.random.default_rng(1)
+    xy0 = 61.0 + rng.uniform(-30, 30, size=(200, 2))
+    g0 = field.value(xy0)
+    reachable = g0 + 1.0 < field.g.max() - 0.5
+    xy0, g0 = xy0[reachable], g0[reachable]
+    xy1, ok = trace(field, xy0, g0 + 1.0)
+    assert len(xy0) > 100 and ok.all()
+    assert np.abs(field.value(xy1[ok]) - (g0[ok] + 1.0)).max() < 0.02
+    # Up the gradient of a dome means toward the apex.
+    c = np.array([61.0, 61.0])
+    assert (np.linalg.norm(xy1[ok] - c, axis=1) < np.linalg.norm(xy0[ok] - c, axis=1)).all()
+
+
+def test_zip_makes_counter_clockwise_strip_triangles():
+    # Lower chain along y=0 (walked +x), upper along y=1 (walked -x, reversed for zipping).
+    lower = np.arange(5)
+    upper = np.arange(5, 12)
+    pts = np.zeros((12, 3))
+    pts[:5, 0] = np.linspace(0, 4, 5)
+    pts[5:, 0] = np.linspace(0, 4, 7)
+    pts[5:, 1] = 1.0
+    faces = zip_strips(pts, [lower], [upper])
+    assert len(faces) == len(lower) + len(upper) - 2
+    assert (signed_areas_2d(pts, faces) > 0).all()
+    assert face_areas(pts, faces).sum() == pytest.approx(4.0)
