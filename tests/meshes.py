@@ -1,0 +1,209 @@
+"""Test meshes for the flattening and simulation solvers (not the real mesher).
+
+Isolines (analytic rings, or contourpy loops of a height field) are resampled
+at spacing <= ``l_u``; all samples plus a few fill points (apex, flat areas
+between isolines) are triangulated by Delaunay in the plane; consecutive
+samples of one isoline that end up joined by a mesh edge are printing edges,
+every other edge is a bridge edge. This gives valid :class:`Mesh` objects
+with isoline-aligned printing edges, which is all the solvers need.
+"""
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+from scipy.spatial import Delaunay, cKDTree
+
+import contourpy
+
+from pipeline import shapes
+from pipeline.geometry import Mesh, edge_index, signed_areas_2d, unique_edges
+
+
+def resample_polyline(points, l_u, closed):
+    """Points at equal arc-length spacing <= ``l_u`` along a polyline ((k, d) -> (j, d)).
+
+    A closed polyline must not repeat its first point; the result does not either.
+    """
+    pts = np.asarray(points, dtype=float)
+    ring = np.vstack([pts, pts[:1]]) if closed else pts
+    seg = np.linalg.norm(np.diff(ring, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    total = s[-1]
+    count = max(int(np.ceil(total / l_u)), 3 if closed else 1)
+    t = np.linspace(0.0, total, count + 1)
+    if closed:
+        t = t[:-1]
+    return np.stack([np.interp(t, s, ring[:, k]) for k in range(ring.shape[1])], axis=1)
+
+
+def mesh_from_loops(loops, closed, levels, extra=None, inside=None):
+    """Delaunay mesh through isoline samples.
+
+    Parameters
+    ----------
+    loops : list of (k_i, 3) float, mm
+        Resampled isolines (closed loops without a repeated point, or open arcs).
+    closed : list of bool
+    levels : list of float, mm
+        Height of each isoline.
+    extra : (q, 3) float, optional
+        Further vertices (apex, fill points); their edges are bridges.
+    inside : callable (k, 2) -> (k,) bool, optional
+        Footprint test for non-convex domains; triangles whose centroid or
+        edge midpoints fall outside are dropped.
+    """
+    pts = [np.asarray(l, float) for l in loops]
+    iso_id = np.concatenate([np.full(len(p), i) for i, p in enumerate(pts)])
+    cand = []
+    cand_iso = []
+    start = 0
+    for i, p in enumerate(pts):
+        k = len(p)
+        a = start + np.arange(k - (0 if closed[i] else 1))
+        b = start + (np.arange(1, k + 1) % k if closed[i] else np.arange(1, k))
+        cand.append(np.stack([a, b], axis=1))
+        cand_iso.append(np.full(len(a), i))
+        start += k
+    verts = np.vstack(pts)
+    vlevel = np.asarray(levels, float)[iso_id]
+    if extra is not None and len(extra):
+        extra = np.asarray(extra, float)
+        verts = np.vstack([verts, extra])
+        vlevel = np.concatenate([vlevel, extra[:, 2]])
+    tri = Delaunay(verts[:, :2]).simplices.astype(np.int64)
+    if inside is not None:
+        probe = [verts[tri].mean(axis=1)[:, :2]]
+        for i, j in ((0, 1), (1, 2), (2, 0)):
+            probe.append(0.5 * (verts[tri[:, i], :2] + verts[tri[:, j], :2]))
+        ok = np.logical_and.reduce([inside(q) for q in probe])
+        tri = tri[ok]
+    area = signed_areas_2d(verts, tri)
+    tri = tri[np.abs(area) > 1e-9]
+    flip = signed_areas_2d(verts, tri) < 0
+    tri[flip] = tri[flip][:, ::-1]
+    tri = _drop_non_manifold(tri)
+    used = np.unique(tri)
+    remap = np.full(len(verts), -1)
+    remap[used] = np.arange(len(used))
+    faces = remap[tri]
+    edges = unique_edges(faces)
+    cand = remap[np.vstack(cand)]
+    cand_iso = np.concatenate(cand_iso)
+    keep = (cand >= 0).all(axis=1)
+    cand, cand_iso = cand[keep], cand_iso[keep]
+    idx = edge_index(edges, cand)
+    hit = idx >= 0
+    is_print = np.zeros(len(edges), bool)
+    is_print[idx[hit]] = True
+    printing_iso = np.full(len(edges), -1)
+    printing_iso[idx[hit]] = cand_iso[hit]
+    return Mesh(vertices=verts[used], faces=faces, printing_edges=edges[is_print],
+                bridge_edges=edges[~is_print], vertex_level=vlevel[used],
+                printing_isoline=printing_iso[is_print],
+                isoline_level=np.asarray(levels, float), isoline_closed=np.asarray(closed, bool),
+                info={"isolines": len(loops)})
+
+
+def _drop_non_manifold(tri):
+    """Remove triangles at vertices where the boundary touches itself (bow ties)."""
+    for _ in range(10):
+        e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+        e.sort(axis=1)
+        uniq, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+        bnd = uniq[cnt == 1]
+        deg = np.bincount(bnd.ravel(), minlength=tri.max() + 1)
+        bad = np.flatnonzero(deg > 2)
+        if len(bad) == 0:
+            return tri
+        # Drop the boundary faces at the bad vertices; the rest stays a disk.
+        on_bnd = (cnt[inv] == 1).reshape(3, -1).any(axis=0)
+        touches = np.isin(tri, bad).any(axis=1)
+        tri = tri[~(on_bnd & touches)]
+    return tri
+
+
+def spherical_cap(rho_mm=84.5, height_mm=25.0, ring_arc_mm=4.0, l_u=1.5, seed=0):
+    """Polar mesh of a spherical cap with concentric isoline rings.
+
+    Ring k lies at meridian arc length ``s_k = k * ring_arc_mm`` from the apex
+    (radius ``rho sin(s/rho)``, a circle of constant height); the last ring is
+    the rim. Returns (mesh, s_of_isoline) where ``s_of_isoline[i]`` is the arc
+    length of isoline i (for the analytic check 1 - sin(phi)/phi).
+    """
+    rng = np.random.default_rng(seed)
+    phi_max = np.arccos(1.0 - height_mm / rho_mm)
+    s_max = rho_mm * phi_max
+    n_rings = max(int(round(s_max / ring_arc_mm)), 2)
+    s = np.linspace(0.0, s_max, n_rings + 1)[1:]
+    loops, levels = [], []
+    for sk in s:
+        r = rho_mm * np.sin(sk / rho_mm)
+        z = rho_mm * np.cos(sk / rho_mm) - (rho_mm - height_mm)
+        count = max(int(np.ceil(2 * np.pi * r / l_u)), 6)
+        t = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(count) / count
+        loops.append(np.stack([r * np.cos(t), r * np.sin(t), np.full(count, z)], axis=1))
+        levels.append(z)
+    apex = np.array([[0.0, 0.0, height_mm]])
+    mesh = mesh_from_loops(loops, [True] * len(loops), levels, extra=apex)
+    return mesh, s
+
+
+def isoline_mesh(hf, spacing_mm=2.0, l_u=1.5, level0_frac=0.08, fill_mm=None):
+    """Mesh a :class:`HeightField` along its isolines (closed loops or open arcs).
+
+    spacing_mm : height step between isolines; l_u : max printing edge length;
+    fill_mm : grid points farther than this from every isoline sample are
+    added as vertices (apexes, saddles, flat areas); default 2 * l_u.
+    The footprint boundary is the isoline at ``level0_frac`` of the height.
+    """
+    z = hf.z[::-1]  # contourpy wants increasing y; row 0 of hf is north
+    rows, cols = z.shape
+    p = hf.pixel_mm
+    x = np.arange(cols) * p
+    y = np.arange(rows) * p
+    zmax = float(np.nanmax(z))
+    level0 = level0_frac * zmax
+    gen = contourpy.contour_generator(x, y, z, line_type="Separate")
+    loops, closed, levels = [], [], []
+    for lev in np.arange(level0, zmax, spacing_mm):
+        for line in gen.lines(lev):
+            is_closed = np.allclose(line[0], line[-1])
+            pts = line[:-1] if is_closed else line
+            if len(pts) < 3:
+                continue
+            samples = resample_polyline(pts, l_u, is_closed)
+            if is_closed and len(samples) < 4:
+                continue
+            loops.append(np.column_stack([samples, np.full(len(samples), lev)]))
+            closed.append(bool(is_closed))
+            levels.append(float(lev))
+
+    def height(xy):
+        rc = np.stack([xy[:, 1] / p, xy[:, 0] / p])  # rows of the flipped grid
+        zz = np.nan_to_num(z, nan=-1.0)
+        return map_coordinates(zz, rc, order=1, mode="constant", cval=-1.0)
+
+    fill = 2.0 * l_u if fill_mm is None else fill_mm
+    step = max(int(round(fill / p / 2)), 1)
+    gy, gx = np.mgrid[0:rows:step, 0:cols:step]
+    cand = np.column_stack([gx.ravel() * p, gy.ravel() * p, z[gy, gx].ravel()])
+    cand = cand[np.isfinite(cand[:, 2]) & (cand[:, 2] > level0 + 0.5 * spacing_mm)]
+    iso_xy = np.vstack([l[:, :2] for l in loops])
+    dist, _ = cKDTree(iso_xy).query(cand[:, :2])
+    extra = cand[dist > fill]
+    # Chords of convex stretches sag slightly outside the boundary isoline.
+    inside = lambda q: height(q) >= level0 - 0.1 * spacing_mm
+    return mesh_from_loops(loops, closed, levels, extra=extra, inside=inside)
+
+
+def reference_mesh(name, l_u=2.0, spacing_mm=2.5, pixel_mm=1.0):
+    """Isoline mesh of one of :data:`pipeline.shapes.REFERENCE` at test resolution."""
+    return isoline_mesh(shapes.REFERENCE[name](pixel_mm=pixel_mm), spacing_mm=spacing_mm, l_u=l_u)
+
+
+def longest_diameter(mesh):
+    """Largest distance between two boundary-ish vertices (mm), via the convex hull."""
+    from scipy.spatial import ConvexHull
+    xy = mesh.vertices[:, :2]
+    h = xy[ConvexHull(xy).vertices]
+    d = np.linalg.norm(h[:, None] - h[None], axis=2)
+    return float(d.max())
