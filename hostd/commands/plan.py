@@ -1,0 +1,66 @@
+"""`hostd plan INPUT --profile NAME_OR_PATH -o OUTDIR`: plan one file, write its outputs."""
+
+import sys
+import time
+from pathlib import Path
+
+from pipeline.errors import PipelineError
+from pipeline.profile import load_profile
+
+
+def add_parser(sub):
+    p = sub.add_parser("plan", help="plan one height field into flat layout, pictures and report",
+                       description="Run the flatten-and-plan pipeline on INPUT and write "
+                                   "NAME.report.json, NAME.flat.ply, NAME.simulated.ply, "
+                                   "NAME.stress.png and NAME.preview.png into OUTDIR.")
+    p.add_argument("input", help="height field: PNG/TIFF, .npy/.npz (mm) or STL/OBJ/PLY/GLB")
+    p.add_argument("--profile", "-p", default=None,
+                   help="printer profile name or YAML path (default: the sidecar's, "
+                        "else generic-0.5mm)")
+    p.add_argument("-o", "--outdir", default=".", help="output folder (default: .)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress on stderr")
+    p.set_defaults(func=run)
+
+
+def _profile_name(args):
+    if args.profile:
+        return args.profile
+    from pipeline.heightfield import load_sidecar, sidecar_path
+    try:
+        side = load_sidecar(sidecar_path(Path(args.input)))
+        if side is not None and getattr(side, "profile", None):
+            return side.profile
+    except PipelineError:
+        pass  # the pipeline reports the sidecar error properly when it reads it
+    return "generic-0.5mm"
+
+
+def run(args):
+    from hostd import planner
+
+    show = not args.quiet and sys.stderr.isatty()
+    t0 = time.perf_counter()
+
+    def progress(stage, message):
+        if show:
+            print("[%6.1fs] %-9s %s" % (time.perf_counter() - t0, stage, message),
+                  file=sys.stderr, flush=True)
+
+    name = Path(args.input).stem
+    try:
+        profile = load_profile(_profile_name(args))
+        plan = planner.run(args.input, profile, args.outdir, progress=progress)
+    except PipelineError as exc:
+        print("hostd plan: error %s: %s" % (exc.code, exc.text()), file=sys.stderr)
+        if exc.code.startswith("profile."):
+            return 3
+        print("hostd plan: wrote %s" % (Path(args.outdir) / (name + ".error.json")),
+              file=sys.stderr)
+        return 2
+    r = plan.report
+    print("%s: %d triangles, invalid edges %.1f %%, simulated mean displacement %.2f mm "
+          "(max %.2f), %.1f s -> %s" % (
+              r["input"], r["mesh"]["triangles"], 100 * r["flatten"]["invalid_edge_fraction"],
+              r["simulation"]["mean_displacement_mm"], r["simulation"]["max_displacement_mm"],
+              r["timing_s"]["total"], Path(args.outdir) / (name + ".report.json")))
+    return 0

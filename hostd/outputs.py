@@ -1,0 +1,86 @@
+"""Writing a plan's files: all or nothing, never a half-written output.
+
+Files are written into a hidden staging folder inside the output folder (same
+filesystem, so the final renames are atomic) and moved into place only when
+every file is complete; a failure removes the staging folder.
+"""
+
+import io
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+
+def atomic_write(path, data):
+    """Write ``data`` (bytes or str) to ``path`` via a temporary file and rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def json_text(obj):
+    return json.dumps(obj, indent=2, sort_keys=False, allow_nan=False) + "\n"
+
+
+class Staging:
+    """Collects output files and publishes them together.
+
+    Use as a context manager; call ``path(name)`` to get where to write a file
+    (or ``write(name, data)``), and the files appear in ``outdir`` on a clean exit.
+    """
+
+    def __init__(self, outdir):
+        self.outdir = Path(outdir)
+        self.outdir.mkdir(parents=True, exist_ok=True)
+        self.dir = Path(tempfile.mkdtemp(prefix=".staging-", dir=self.outdir))
+        self.names = []
+
+    def path(self, name):
+        self.names.append(name)
+        return self.dir / name
+
+    def write(self, name, data):
+        if isinstance(data, str):
+            data = data.encode("utf-8")
+        with open(self.path(name), "wb") as f:
+            f.write(data)
+
+    def write_image(self, name, image):
+        buf = io.BytesIO()
+        image.save(buf, format="PNG", optimize=False)
+        self.write(name, buf.getvalue())
+
+    def publish(self):
+        for name in self.names:
+            src = self.dir / name
+            with open(src, "rb") as f:
+                os.fsync(f.fileno())
+            os.replace(src, self.outdir / name)
+        self.discard()
+
+    def discard(self):
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.publish()
+        else:
+            self.discard()
+        return False

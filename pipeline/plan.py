@@ -1,0 +1,155 @@
+"""The flatten-and-plan pipeline, stage by stage, with timing and the report.
+
+``plan_file`` runs: load -> validate (fill pits) -> simplify (terrain
+topology) -> mesh -> flatten -> simulate, and returns a :class:`Plan` holding
+every intermediate result and the ``report`` dict whose keys other tools read
+(see the README; add keys freely, never rename).
+"""
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import __version__
+from pipeline import heightfield as hfio
+from pipeline.errors import PlanError
+from pipeline.flatten import flatten
+from pipeline.mesh import build_mesh
+from pipeline.simplify import simplify
+from pipeline.simulate import simulate
+from pipeline.validate import validate
+
+
+@dataclass
+class Plan:
+    """Everything one run of the pipeline produced (arrays in mm)."""
+
+    name: str
+    profile: object
+    input_hf: object = None
+    hf: object = None
+    sidecar: object = None
+    mesh: object = None
+    flat: object = None
+    sim: object = None
+    simplified: dict = field(default_factory=dict)
+    report: dict = field(default_factory=dict)
+
+
+STAGES = ("load", "validate", "mesh", "flatten", "simulate")
+
+
+def plan_file(path, profile, progress=None):
+    """Run the pipeline on one input file.
+
+    Parameters
+    ----------
+    path : str or Path, the height field (image, array or mesh)
+    profile : pipeline.profile.Profile
+    progress : callable(stage, message), optional
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    pipeline.errors.PipelineError (with a stable ``code``) on invalid input.
+    """
+    path = Path(path)
+    say = progress or (lambda stage, msg: None)
+    timing = {}
+    t_all = time.perf_counter()
+    result = Plan(name=path.stem, profile=profile)
+
+    def stage(name, msg):
+        say(name, msg)
+        return time.perf_counter()
+
+    t = stage("load", "reading %s" % path.name)
+    hf, sidecar = hfio.load(path, profile=profile)
+    result.input_hf, result.sidecar = hf, sidecar
+    timing["load"] = time.perf_counter() - t
+
+    opts = hfio.settings(sidecar, profile)
+    t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])
+    hf, vrep = validate(hf, opts["max_fill_mm"], bed_mm=profile.bed_mm)
+    hf, srep = simplify(hf, opts["min_prominence_mm"], opts["smooth_mm"])
+    result.simplified = srep
+    timing["validate"] = time.perf_counter() - t
+    result.hf = hf
+
+    mp = profile.mesh
+    t = stage("mesh", "isolines every %.3g mm, gradient lines every %.3g mm"
+              % (mp.isoline_step_mm, mp.gradient_spacing_mm))
+    mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
+                      gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
+    result.mesh = mesh
+    timing["mesh"] = time.perf_counter() - t
+
+    fp = profile.flatten
+    lim = profile.shrink_limits
+    t = stage("flatten", "%d triangles, up to %d iterations" % (len(mesh.faces), fp.iterations))
+    weights = {"bridge": fp.w_bridge, "printing": fp.w_printing, "bending": fp.w_bending,
+               "shear": fp.w_shear, "flattening": fp.w_flattening,
+               "stretching": fp.w_stretching, "spreading": fp.w_spreading}
+    flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
+                   weights=weights)
+    result.flat = flat
+    timing["flatten"] = time.perf_counter() - t
+    if flat.overlapping:
+        raise PlanError(
+            "the flattened layout folds over itself (%d flipped triangles, %d boundary "
+            "crossings)" % (flat.flipped_triangles, flat.boundary_intersections),
+            code="flatten.overlap", file=str(path),
+            fix="simplify the shape (raise min_prominence_mm), lower its height, or raise "
+                "flatten.iterations in the profile")
+
+    t = stage("simulate", "forward simulation of the flat sheet")
+    sim = simulate(mesh, flat, weights={k: weights[k] for k in
+                                        ("bridge", "printing", "bending", "shear")})
+    result.sim = sim
+    timing["simulate"] = time.perf_counter() - t
+    timing["total"] = time.perf_counter() - t_all
+    result.report = _report(path, profile, result, vrep, srep, timing)
+    return result
+
+
+def _report(path, profile, p, vrep, srep, timing):
+    hf, mesh, flat, sim = p.hf, p.mesh, p.flat, p.sim
+    extent = np.ptp(flat.xy, axis=0)
+    return {
+        "input": path.name,
+        "profile": profile.name,
+        "pipeline_version": __version__,
+        "heightfield": {
+            "shape": [int(s) for s in hf.z.shape],
+            "pixel_mm": float(hf.pixel_mm),
+            "longest_diameter_mm": float(vrep["longest_diameter_mm"]),
+            "max_height_mm": float(vrep["max_height_mm"]),
+            "filled_pits": int(vrep["filled_pits"]),
+            "filled_volume_mm3": float(vrep["filled_volume_mm3"]),
+            "deepest_fill_mm": float(vrep.get("deepest_fill_mm", 0.0)),
+            "has_color": hf.color is not None,
+            "simplified": {"peaks_before": int(srep.get("peaks_before", 0)),
+                           "peaks_after": int(srep.get("peaks_after", 0)),
+                           "removed_peaks": len(srep.get("removed_peaks", [])),
+                           "max_change_mm": float(srep.get("max_change_mm", 0.0))},
+        },
+        "mesh": {
+            "vertices": int(len(mesh.vertices)),
+            "triangles": int(len(mesh.faces)),
+            "printing_edges": int(len(mesh.printing_edges)),
+            "bridge_edges": int(len(mesh.bridge_edges)),
+            "isolines": int(mesh.info["isolines"]),
+            "open_isolines": int(mesh.info["open_isolines"]),
+            "saddles": int(mesh.info["saddles"]),
+            "peaks": int(mesh.info["peaks"]),
+        },
+        "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])]),
+        "simulation": {"mean_displacement_mm": float(sim.mean_displacement_mm),
+                       "max_displacement_mm": float(sim.max_displacement_mm)},
+        "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
+    }
