@@ -202,3 +202,73 @@ def fit_arcs(points, values, tolerance_mm, max_value_span):
     ccws.extend([False] * (k - 1 - pos))
     return (np.asarray(ends, dtype=np.int64), np.asarray(centres, dtype=float).reshape(-1, 2),
             np.asarray(ccws, dtype=bool))
+
+
+def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span):
+    """Per-move arrays for a set of traces, arcs where they fit.
+
+    ``q`` (n, 2) int um points, ``starts`` (t+1,) trace offsets, ``th_um``
+    (n - t,) int um thickness per segment, ``arc_vals`` per-segment values an
+    arc may not span by more than ``arc_span``.
+
+    Returns dict of: ``end`` (m,2) int um, ``kind`` (m,) int8 (1 line, 2 cw, 3 ccw),
+    ``ij`` (m,2) int um, ``th`` (m,) int um, ``len`` (m,) float mm, ``first``
+    (t,) int index of each trace's first move, ``start`` (t,2) int um.
+    """
+    t = len(starts) - 1
+    seg_starts = starts[:-1] - np.arange(t)  # segments of trace i: seg_starts[i]:...+k_i-1
+    if tolerance_mm <= 0:
+        seg_mask = np.ones(len(q), bool)
+        seg_mask[starts[:-1]] = False
+        end = q[seg_mask]
+        d = (q[1:] - q[:-1])[seg_mask[1:]] / 1000.0
+        return {"end": end, "kind": np.ones(len(end), np.int8), "ij": np.zeros_like(end),
+                "th": th_um, "len": np.hypot(d[:, 0], d[:, 1]), "first": seg_starts,
+                "start": q[starts[:-1]]}
+    ends, kinds, ijs, ths, lens, firsts = [], [], [], [], [], []
+    n_moves = 0
+    for i in range(t):
+        a, b = starts[i], starts[i + 1]
+        pq = q[a:b]
+        p = pq / 1000.0
+        s0 = seg_starts[i]
+        th = th_um[s0:s0 + (b - a - 1)]
+        vals = arc_vals[s0:s0 + (b - a - 1)]
+        e_idx, centre, ccw = fit_arcs(p, vals, tolerance_mm, arc_span)
+        prev = np.concatenate([[0], e_idx[:-1]])
+        nseg = e_idx - prev
+        is_arc = np.isfinite(centre[:, 0])
+        d = pq[1:] - pq[:-1]
+        seg_len = np.hypot(d[:, 0], d[:, 1]) / 1000.0
+        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+        cum_th = np.concatenate([[0.0], np.cumsum(seg_len * th)])
+        # An arc prints at its chords' length-weighted mean thickness (same volume).
+        mean_th = (cum_th[e_idx] - cum_th[prev]) / np.maximum(cum[e_idx] - cum[prev], 1e-12)
+        mth = np.where(nseg > 1, np.rint(mean_th), th[e_idx - 1]).astype(np.int64)
+        ij = np.zeros((len(e_idx), 2), np.int64)
+        ij[is_arc] = np.rint(centre[is_arc] * 1000.0).astype(np.int64) - pq[prev[is_arc]]
+        ln = cum[e_idx] - cum[prev]
+        if is_arc.any():
+            ln[is_arc] = arc_length(pq[prev[is_arc]], pq[e_idx[is_arc]], ij[is_arc],
+                                     ccw[is_arc])
+        kind = np.where(is_arc, np.where(ccw, 3, 2), 1).astype(np.int8)
+        ends.append(pq[e_idx])
+        kinds.append(kind)
+        ijs.append(ij)
+        ths.append(mth)
+        lens.append(ln)
+        firsts.append(n_moves)
+        n_moves += len(e_idx)
+    return {"end": np.concatenate(ends), "kind": np.concatenate(kinds),
+            "ij": np.concatenate(ijs), "th": np.concatenate(ths), "len": np.concatenate(lens),
+            "first": np.asarray(firsts, np.int64), "start": q[starts[:-1]]}
+
+
+def arc_length(start_um, end_um, ij_um, ccw):
+    """XY length of G2/G3 arcs as firmware runs them (radius from the start point)."""
+    c = start_um + ij_um
+    a0 = np.arctan2(start_um[:, 1] - c[:, 1], start_um[:, 0] - c[:, 0])
+    a1 = np.arctan2(end_um[:, 1] - c[:, 1], end_um[:, 0] - c[:, 0])
+    sweep = np.where(ccw, a1 - a0, a0 - a1) % (2 * np.pi)
+    sweep[sweep < 1e-9] = 2 * np.pi
+    return np.hypot(ij_um[:, 0], ij_um[:, 1]) / 1000.0 * sweep

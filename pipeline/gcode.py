@@ -22,7 +22,6 @@ for the fractional digits) over all moves of a layer at once; only the travel
 blocks between traces are built in a Python loop over traces.
 """
 
-import io
 import math
 import os
 from dataclasses import dataclass, field
@@ -31,13 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import __version__
+from pipeline.arcs import moves_with_arcs
 from pipeline.errors import PlanError
-
-# Trapezoid time model: Marlin's defaults where the profile has no say.
-ACCELERATION_MM_S2 = 1000.0
-JUNCTION_DEVIATION_MM = 0.013
-MAX_Z_SPEED_MM_S = 10.0
-
+from pipeline.printtime import (ACCELERATION_MM_S2, JUNCTION_DEVIATION_MM, MAX_Z_SPEED_MM_S,
+                                estimate_time_text, polyline_time_s, trapezoid_s)
 
 @dataclass(frozen=True)
 class GcodeSettings:
@@ -238,130 +234,7 @@ def _check_bed(over, bed_mm, where="the part"):
             details={"overhang_mm": over})
 
 
-def _moves(q, starts, th_um, arc_vals, settings, arc_span):
-    """Per-move arrays for the whole 2-D path set, with optional arcs.
-
-    Returns dict of: ``end`` (m,2) int um, ``kind`` (m,) int8 (1 line, 2 cw, 3 ccw),
-    ``ij`` (m,2) int um, ``th`` (m,) int um, ``len`` (m,) float mm, ``first``
-    (t,) int index of each trace's first move, ``start`` (t,2) int um.
-    """
-    t = len(starts) - 1
-    seg_starts = starts[:-1] - np.arange(t)  # segments of trace i: seg_starts[i]:...+k_i-1
-    if settings.arc_tolerance_mm <= 0:
-        seg_mask = np.ones(len(q), bool)
-        seg_mask[starts[:-1]] = False
-        end = q[seg_mask]
-        d = (q[1:] - q[:-1])[seg_mask[1:]] / 1000.0
-        return {"end": end, "kind": np.ones(len(end), np.int8), "ij": np.zeros_like(end),
-                "th": th_um, "len": np.hypot(d[:, 0], d[:, 1]), "first": seg_starts,
-                "start": q[starts[:-1]]}
-    from pipeline.arcs import fit_arcs
-    ends, kinds, ijs, ths, lens, firsts = [], [], [], [], [], []
-    n_moves = 0
-    for i in range(t):
-        a, b = starts[i], starts[i + 1]
-        pq = q[a:b]
-        p = pq / 1000.0
-        s0 = seg_starts[i]
-        th = th_um[s0:s0 + (b - a - 1)]
-        vals = arc_vals[s0:s0 + (b - a - 1)]
-        e_idx, centre, ccw = fit_arcs(p, vals, settings.arc_tolerance_mm, arc_span)
-        prev = np.concatenate([[0], e_idx[:-1]])
-        nseg = e_idx - prev
-        is_arc = np.isfinite(centre[:, 0])
-        d = pq[1:] - pq[:-1]
-        seg_len = np.hypot(d[:, 0], d[:, 1]) / 1000.0
-        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-        cum_th = np.concatenate([[0.0], np.cumsum(seg_len * th)])
-        # An arc prints at its chords' length-weighted mean thickness (same volume).
-        mean_th = (cum_th[e_idx] - cum_th[prev]) / np.maximum(cum[e_idx] - cum[prev], 1e-12)
-        mth = np.where(nseg > 1, np.rint(mean_th), th[e_idx - 1]).astype(np.int64)
-        ij = np.zeros((len(e_idx), 2), np.int64)
-        ij[is_arc] = np.rint(centre[is_arc] * 1000.0).astype(np.int64) - pq[prev[is_arc]]
-        ln = cum[e_idx] - cum[prev]
-        if is_arc.any():
-            ln[is_arc] = _arc_length(pq[prev[is_arc]], pq[e_idx[is_arc]], ij[is_arc],
-                                     ccw[is_arc])
-        kind = np.where(is_arc, np.where(ccw, 3, 2), 1).astype(np.int8)
-        ends.append(pq[e_idx])
-        kinds.append(kind)
-        ijs.append(ij)
-        ths.append(mth)
-        lens.append(ln)
-        firsts.append(n_moves)
-        n_moves += len(e_idx)
-    return {"end": np.concatenate(ends), "kind": np.concatenate(kinds),
-            "ij": np.concatenate(ijs), "th": np.concatenate(ths), "len": np.concatenate(lens),
-            "first": np.asarray(firsts, np.int64), "start": q[starts[:-1]]}
-
-
-def _arc_length(start_um, end_um, ij_um, ccw):
-    """XY length of G2/G3 arcs as firmware runs them (radius from the start point)."""
-    c = start_um + ij_um
-    a0 = np.arctan2(start_um[:, 1] - c[:, 1], start_um[:, 0] - c[:, 0])
-    a1 = np.arctan2(end_um[:, 1] - c[:, 1], end_um[:, 0] - c[:, 0])
-    sweep = np.where(ccw, a1 - a0, a0 - a1) % (2 * np.pi)
-    sweep[sweep < 1e-9] = 2 * np.pi
-    return np.hypot(ij_um[:, 0], ij_um[:, 1]) / 1000.0 * sweep
-
-
-# ------------------------------------------------------------------ timing
-
-def _trapezoid_s(length, v0, v1, vmax, accel):
-    """Time of moves of ``length`` mm entered at ``v0`` and left at ``v1`` (arrays)."""
-    v0 = np.minimum(v0, vmax)
-    v1 = np.minimum(v1, vmax)
-    v1 = np.minimum(v1, np.sqrt(v0 * v0 + 2 * accel * length))
-    v0 = np.minimum(v0, np.sqrt(v1 * v1 + 2 * accel * length))
-    d_acc = (vmax * vmax - v0 * v0) / (2 * accel)
-    d_dec = (vmax * vmax - v1 * v1) / (2 * accel)
-    cruise = d_acc + d_dec <= length
-    vp = np.sqrt(np.maximum((2 * accel * length + v0 * v0 + v1 * v1) / 2.0, 0.0))
-    vp = np.where(cruise, vmax, vp)
-    t = (vp - v0) / accel + (vp - v1) / accel
-    return t + np.where(cruise, (length - d_acc - d_dec) / vmax, 0.0)
-
-
-def _print_time_s(q, starts, speed, settings):
-    """Extrusion time of one layer at ``speed`` mm/s (junction-deviation trapezoids).
-
-    Each trace starts and ends at rest; inner junctions keep the speed Marlin's
-    junction deviation allows for their angle. Uses the polyline before arc
-    fitting (arcs change the time negligibly).
-    """
-    seg_mask = np.ones(len(q), bool)
-    seg_mask[starts[:-1]] = False
-    d = ((q[1:] - q[:-1]) / 1000.0)[seg_mask[1:]]
-    length = np.hypot(d[:, 0], d[:, 1])
-    u = d / np.maximum(length, 1e-12)[:, None]
-    a = settings.acceleration_mm_s2
-    # Junction speed between segment j and j+1 (Marlin's junction deviation).
-    cos_j = -np.einsum("ij,ij->i", u[:-1], u[1:])
-    sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos_j), 0.0, 1.0))
-    with np.errstate(divide="ignore"):
-        vj = np.sqrt(a * settings.junction_deviation_mm * sin_half / np.maximum(1 - sin_half, 0))
-    v = np.concatenate([[0.0], np.minimum(vj, speed), [0.0]])
-    seg_first = starts[:-1] - np.arange(len(starts) - 1)
-    v_in = v[:-1].copy()
-    v_out = v[1:].copy()
-    v_in[seg_first] = 0.0  # traces start at rest
-    v_out[seg_first[1:] - 1] = 0.0
-    return float(_trapezoid_s(length, v_in, v_out, speed, a).sum()), float(length.sum())
-
-
 # ------------------------------------------------------------------- writer
-
-def estimate_time_text(seconds):
-    """PrusaSlicer's time format: ``1d 2h 3m 4s``, leading zero units dropped."""
-    s = int(round(seconds))
-    parts = []
-    for unit, n in (("d", 86400), ("h", 3600), ("m", 60)):
-        if s >= n or parts:
-            parts.append("%d%s" % (s // n, unit))
-            s %= n
-    parts.append("%ds" % s)
-    return " ".join(parts)
-
 
 class _Sink:
     """Counts lines and bytes of what is written to a text or binary file object."""
@@ -472,7 +345,7 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
                         % (top_um / 1000, settings.max_z_mm), code="gcode.too_tall",
                         fix="use fewer layers or thinner layers")
 
-    mv = _moves(q, starts, th_um, arc_vals, settings, arc_value_span)
+    mv = moves_with_arcs(q, starts, th_um, arc_vals, settings.arc_tolerance_mm, arc_value_span)
     n_traces = len(starts) - 1
     n_moves = len(mv["th"])
     n_segments = len(q) - n_traces
@@ -512,8 +385,11 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     trace_ends = np.concatenate([mv["first"][1:], [n_moves]])
 
     # Time estimate and header numbers.
-    t_first, length_mm = _print_time_s(q, starts, settings.first_layer_mm_s, settings)
-    t_rest = _print_time_s(q, starts, settings.print_mm_s, settings)[0] if layers > 1 else 0.0
+    acc = settings.acceleration_mm_s2
+    jd = settings.junction_deviation_mm
+    # Timed on the polyline before arc fitting (arcs change it negligibly).
+    t_first, length_mm = polyline_time_s(q / 1000.0, starts, settings.first_layer_mm_s, acc, jd)
+    t_rest = polyline_time_s(q / 1000.0, starts, settings.print_mm_s, acc, jd)[0]
     travel_from = np.concatenate([[[0, 0]], mv["end"][trace_ends[:-1] - 1]]) / 1000.0
     travel_to = mv["start"] / 1000.0
     travel_len = np.hypot(*(travel_to - travel_from).T)
@@ -523,10 +399,9 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
         travel_rest[0] = wrap
     else:
         travel_rest = travel_len
-    acc = settings.acceleration_mm_s2
     v_tr = settings.travel_mm_s
-    t_travel = (_trapezoid_s(travel_len, 0.0, 0.0, v_tr, acc).sum()
-                + (layers - 1) * _trapezoid_s(travel_rest, 0.0, 0.0, v_tr, acc).sum())
+    t_travel = (trapezoid_s(travel_len, 0.0, 0.0, v_tr, acc).sum()
+                + (layers - 1) * trapezoid_s(travel_rest, 0.0, 0.0, v_tr, acc).sum())
     z_speed = min(v_tr, MAX_Z_SPEED_MM_S)
     t_retract = 2 * settings.retract_mm / settings.retract_mm_s if settings.retract_mm > 0 else 0
     t_hop = 2 * settings.z_hop_mm / z_speed
