@@ -27,6 +27,7 @@ from PIL import Image
 
 from pipeline.errors import InvalidHeightField, InvalidSidecar
 from pipeline.geometry import HeightField
+from pipeline.raster import pixel_barycentrics, rasterize_triangles
 
 IMAGE_EXT = (".png", ".tif", ".tiff")
 ARRAY_EXT = (".npy", ".npz")
@@ -479,11 +480,14 @@ def _read_color(path, shape, max_pixels):
 
 
 def _read_mesh(path, sidecar, max_pixels):
-    """Top surface of a mesh: (z (rows, cols) in mesh units or mm, color or None, pixel_mm)."""
+    """Top surface of a mesh: z (rows, cols) in mm (mesh units, scaled by ``size_mm``),
+    colour (rows, cols, 3) uint8 or None, pixel_mm."""
     import trimesh  # heavy import, only for mesh inputs
 
     name = str(path)
-    if path.suffix.lower() == ".stl" and not open(path, "rb").read(512).lstrip().startswith(b"solid"):
+    with open(path, "rb") as f:
+        ascii_stl = f.read(512).lstrip().startswith(b"solid")
+    if path.suffix.lower() == ".stl" and not ascii_stl:
         expected = _stl_binary_size(path)
         if expected is not None and expected > path.stat().st_size:
             raise _fail("heightfield.truncated", "binary STL declares %d bytes of triangles but has "
@@ -506,16 +510,28 @@ def _read_mesh(path, sidecar, max_pixels):
     if sidecar.size_mm is not None and span > 0:
         verts = verts * (sidecar.size_mm / span)  # uniform: keeps the shape's proportions
     pixel_mm = sidecar.pixel_mm or MESH_PIXEL_MM
-    from pipeline.zbuffer import grid_shape, rasterize_top
-    rows, cols = grid_shape([verts[:, :2].min(axis=0), verts[:, :2].max(axis=0)], pixel_mm)
+    lo, hi = verts[:, :2].min(axis=0), verts[:, :2].max(axis=0)
+    cols, rows = (np.floor((hi - lo) / pixel_mm + 1e-9).astype(int) + 1)
     if rows * cols > max_pixels:
         raise _fail("heightfield.too_many_pixels", "sampling the mesh at %g mm needs %d x %d "
                     "samples, more than the limit of %d" % (pixel_mm, cols, rows, max_pixels),
-                    name, "set a larger pixel_mm in the sidecar", pixels=rows * cols,
+                    name, "set a larger pixel_mm in the sidecar", pixels=int(rows * cols),
                     max_pixels=max_pixels)
-    colors = _mesh_vertex_colors(mesh)
-    z, rgb = rasterize_top(verts, faces, pixel_mm, colors)
-    color = None if rgb is None else np.clip(np.rint(rgb[..., :3]), 0, 255).astype(np.uint8)
+    # One ray straight down per sample, first hit kept = a z-buffer seen from above.
+    # The rasteriser samples pixel centres (+0.5); our samples sit on grid points.
+    xy = np.column_stack([(verts[:, 0] - lo[0]) / pixel_mm + 0.5,
+                          (hi[1] - verts[:, 1]) / pixel_mm + 0.5])
+    face_id = rasterize_triangles(xy, -verts[:, 2], faces, (rows, cols))
+    r, c, face, w = pixel_barycentrics(xy, faces, face_id)
+    corners = faces[face]
+    z = np.full((rows, cols), np.nan)
+    z[r, c] = np.einsum("ij,ij->i", w, verts[corners, 2])
+    color = None
+    vc = _mesh_vertex_colors(mesh)
+    if vc is not None:
+        color = np.zeros((rows, cols, 3), np.uint8)
+        rgb = np.einsum("ij,ijk->ik", w, vc[corners])
+        color[r, c] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
     return z, color, pixel_mm
 
 
