@@ -189,9 +189,17 @@ def sample_move(m, step_mm=0.05):
     return pts
 
 
-def point_polyline_distance(points, poly):
-    """Distance from each of ``points`` (n, 2) to the polyline ``poly`` (k, 2)."""
+def point_polyline_distance(points, poly, near_mm=None):
+    """Distance from each of ``points`` (n, 2) to the polyline ``poly`` (k, 2).
+
+    With ``near_mm``, only segments within that distance of the points'
+    bounding box are considered (exact for distances up to ``near_mm``).
+    """
     a, b = poly[:-1], poly[1:]
+    if near_mm is not None:
+        lo, hi = points.min(0) - near_mm, points.max(0) + near_mm
+        keep = np.all((np.maximum(a, b) >= lo) & (np.minimum(a, b) <= hi), axis=1)
+        a, b = a[keep], b[keep]
     ab = b - a
     ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
     ap = points[:, None, :] - a[None]

@@ -304,6 +304,23 @@ def test_arcs_stay_within_tolerance_and_cut_lines():
     assert stats["filament_mm"] == pytest.approx(plain["filament_mm"], rel=2e-3)
 
 
+def test_arcs_follow_varying_curvature_within_tolerance():
+    # An ellipse: no single circle fits long stretches, so only a tolerance check
+    # on every arc keeps the printed path on the polyline.
+    a = np.linspace(0, 2 * np.pi, 801)
+    ellipse = np.c_[40 * np.cos(a), 12 * np.sin(a)]
+    sig = [np.full(800, 0.2)]
+    tol = 0.01
+    text, stats = write([ellipse], sig, settings(arc_tolerance_mm=tol))
+    assert stats["lines"] < 0.5 * stats["lines_without_arcs"]
+    parsed = parse(text)
+    poly = ellipse + np.array(PROFILE.bed_mm) / 2
+    layer1 = [m for m in parsed.moves if m.layer == 1 and m.extruding]
+    worst = max(point_polyline_distance(sample_move(m, 0.02)[:, :2], poly, near_mm=1.0).max()
+                for m in layer1 if m.code != 1)
+    assert worst <= tol + 1e-3
+
+
 def test_arcs_never_cross_a_thickness_jump():
     traces, sigmas = rings(n_rings=1, r0=20.0, wobble=0.0)
     n = len(sigmas[0])
