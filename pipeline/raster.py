@@ -48,15 +48,16 @@ def _split_bands(x0, x1, y0, y1):
 
 
 def _candidates(x0, x1, y0, y1):
-    """Yield (item, x, y, valid) chunks: candidate pixels of boxes of one size.
+    """Yield chunks of candidate pixels, boxes of one (rounded) size at a time.
 
-    ``item`` (c,) indexes the boxes; ``x``, ``y`` (c, k) int are pixel columns
-    and rows of each box's template; ``valid`` (c, k) bool is False where the
-    template (rounded up) reaches past the box.
+    Yields (item, x0, y0, dx, dy, valid): ``item`` (c,) indexes the boxes, ``x0``,
+    ``y0`` (c,) are their top-left pixels, ``dx``, ``dy`` (k,) the shared template
+    of offsets and ``valid`` (c, k) bool is False where the template (rounded up)
+    reaches past a box. Pixel of candidate (i, j): column x0[i] + dx[j], row y0[i] + dy[j].
     """
     item, x0, x1, y0, y1 = _split_bands(x0, x1, y0, y1)
-    rw = _round_up(x1 - x0 + 1)
-    rh = _round_up(y1 - y0 + 1)
+    bw, bh = x1 - x0 + 1, y1 - y0 + 1
+    rw, rh = _round_up(bw), _round_up(bh)
     key = rw * (1 << 20) + rh
     order = np.argsort(key, kind="stable")
     ks = key[order]
@@ -68,18 +69,22 @@ def _candidates(x0, x1, y0, y1):
         per = max(1, _CHUNK // (w * h))
         for c in range(s, e, per):
             sel = order[c:min(e, c + per)]
-            x = x0[sel, None] + dx
-            y = y0[sel, None] + dy
-            yield item[sel], x, y, (x <= x1[sel, None]) & (y <= y1[sel, None])
+            valid = np.ones((len(sel), w * h), bool)
+            if w * h > 1:
+                valid = (dx < bw[sel, None]) & (dy < bh[sel, None])
+            yield item[sel], x0[sel], y0[sel], dx, dy, valid
 
 
 def _boxes(lo_x, hi_x, lo_y, hi_y, width, height):
-    """Pixel boxes whose centres can fall in [lo, hi]; clipped to the image."""
+    """Pixel boxes whose centres can fall in [lo, hi]; clipped to the image.
+
+    Rows with NaN give garbage boxes: callers drop non-finite primitives.
+    """
     with np.errstate(invalid="ignore"):
-        x0 = np.maximum(np.ceil(np.nan_to_num(lo_x - 0.5, nan=1e9)), 0).astype(np.int64)
-        x1 = np.minimum(np.floor(np.nan_to_num(hi_x - 0.5, nan=-1e9)), width - 1).astype(np.int64)
-        y0 = np.maximum(np.ceil(np.nan_to_num(lo_y - 0.5, nan=1e9)), 0).astype(np.int64)
-        y1 = np.minimum(np.floor(np.nan_to_num(hi_y - 0.5, nan=-1e9)), height - 1).astype(np.int64)
+        x0 = np.clip(np.ceil(lo_x - 0.5), 0, width).astype(np.int64)
+        x1 = np.clip(np.floor(hi_x - 0.5), -1, width - 1).astype(np.int64)
+        y0 = np.clip(np.ceil(lo_y - 0.5), 0, height).astype(np.int64)
+        y1 = np.clip(np.floor(hi_y - 0.5), -1, height - 1).astype(np.int64)
     return x0, x1, y0, y1
 
 
@@ -90,16 +95,15 @@ def _edge_functions(p):
     Returns (a, b, c) each (m, 3): ``w_k(x, y) = a_k x + b_k y + c_k``, with
     ``sum_k w_k = 1``; rows of degenerate triangles are NaN.
     """
-    x, y = p[..., 0], p[..., 1]
-    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)  # corner k+1
-    xp, yp = np.roll(x, -2, axis=1), np.roll(y, -2, axis=1)  # corner k+2
-    area2 = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
+    x0, x1, x2 = p[:, 0, 0], p[:, 1, 0], p[:, 2, 0]
+    y0, y1, y2 = p[:, 0, 1], p[:, 1, 1], p[:, 2, 1]
+    area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = np.where(np.abs(area2) > 1e-12, 1.0 / area2, np.nan)[:, None]
     # w_k is the signed area of (x, corner k+1, corner k+2) over the full area.
-    a = (yn - yp) * inv
-    b = (xp - xn) * inv
-    c = (xn * yp - xp * yn) * inv
+    a = np.stack([y1 - y2, y2 - y0, y0 - y1], axis=1) * inv
+    b = np.stack([x2 - x1, x0 - x2, x1 - x0], axis=1) * inv
+    c = np.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], axis=1) * inv
     return a, b, c
 
 
@@ -128,34 +132,37 @@ def rasterize_triangles(xy, depth, faces, shape):
     face_id = np.full(height * width, -1, dtype=np.int32)
     if len(faces) == 0:
         return face_id.reshape(shape)
-    p = np.asarray(xy, dtype=np.float64)[faces]
+    xy = np.asarray(xy, dtype=np.float64)
+    px, py = xy[:, 0][faces], xy[:, 1][faces]
     z = np.asarray(depth, dtype=np.float64)[faces]
     with np.errstate(invalid="ignore"):
-        a, b, c = _edge_functions(p)
-    ok = np.isfinite(a[:, 0]) & np.isfinite(p).all(axis=(1, 2)) & np.isfinite(z).all(axis=1)
-    x0, x1, y0, y1 = _boxes(p[..., 0].min(1), p[..., 0].max(1), p[..., 1].min(1), p[..., 1].max(1),
-                            width, height)
+        a, b, c = _edge_functions(np.stack([px, py], axis=2))
+    ok = np.isfinite(a[:, 0]) & np.isfinite(z[:, 0] + z[:, 1] + z[:, 2])
+    lo = lambda q: np.minimum(np.minimum(q[:, 0], q[:, 1]), q[:, 2])
+    hi = lambda q: np.maximum(np.maximum(q[:, 0], q[:, 1]), q[:, 2])
+    x0, x1, y0, y1 = _boxes(lo(px), hi(px), lo(py), hi(py), width, height)
     live = np.flatnonzero(ok & (x1 >= x0) & (y1 >= y0))
     if len(live) == 0:
         return face_id.reshape(shape)
     # Depth as a plane over the screen: z = az x + bz y + cz per face.
-    az, bz, cz = ((a * z).sum(1), (b * z).sum(1), (c * z).sum(1))
+    az = a[:, 0] * z[:, 0] + a[:, 1] * z[:, 1] + a[:, 2] * z[:, 2]
+    bz = b[:, 0] * z[:, 0] + b[:, 1] * z[:, 1] + b[:, 2] * z[:, 2]
+    cz = c[:, 0] * z[:, 0] + c[:, 1] * z[:, 1] + c[:, 2] * z[:, 2]
     zmin, zmax = z[live].min(), z[live].max()
     zscale = (2 ** 31 - 2) / max(zmax - zmin, 1e-12)
-    eps = -1e-9  # shared edges belong to both neighbours; the depth test settles ties
+    # Shared edges belong to both neighbours (no cracks); the depth test settles ties.
+    eps = -1e-9
     best = np.full(height * width, np.iinfo(np.int64).max, dtype=np.int64)
-    for it, x, y, valid in _candidates(x0[live], x1[live], y0[live], y1[live]):
+    for it, bx, by, dx, dy, valid in _candidates(x0[live], x1[live], y0[live], y1[live]):
         f = live[it]
-        xc = x + 0.5
-        yc = y + 0.5
-        w0 = a[f, 0, None] * xc + b[f, 0, None] * yc + c[f, 0, None]
-        w1 = a[f, 1, None] * xc + b[f, 1, None] * yc + c[f, 1, None]
+        xc, yc = bx + 0.5, by + 0.5
+        w0 = (a[f, 0] * xc + b[f, 0] * yc + c[f, 0])[:, None] + a[f, 0, None] * dx + b[f, 0, None] * dy
+        w1 = (a[f, 1] * xc + b[f, 1] * yc + c[f, 1])[:, None] + a[f, 1, None] * dx + b[f, 1, None] * dy
         valid &= (w0 >= eps) & (w1 >= eps) & (w0 + w1 <= 1 - eps)
-        zq = (az[f, None] * xc + bz[f, None] * yc + (cz[f, None] - zmin)) * zscale
         i, k = np.nonzero(valid)
-        zq = np.clip(zq[i, k], 0, 2 ** 31 - 2)
-        key = (zq.astype(np.int64) << 32) | f[i]
-        np.minimum.at(best, y[i, k] * width + x[i, k], key)
+        zq = (az[f[i]] * (xc[i] + dx[k]) + bz[f[i]] * (yc[i] + dy[k]) + (cz[f[i]] - zmin)) * zscale
+        key = (np.clip(zq, 0, 2 ** 31 - 2).astype(np.int64) << 32) | f[i]
+        np.minimum.at(best, (by[i] + dy[k]) * width + bx[i] + dx[k], key)
     hit = best != np.iinfo(np.int64).max
     face_id[hit] = (best[hit] & 0xFFFFFFFF).astype(np.int32)
     return face_id.reshape(shape)
@@ -180,11 +187,11 @@ def pixel_barycentrics(xy, faces, face_id):
     """
     rows, cols = np.nonzero(face_id >= 0)
     face = face_id[rows, cols].astype(np.int64)
-    p = np.asarray(xy, dtype=np.float64)[np.asarray(faces)[face]]
-    a, b, c = _edge_functions(p)
-    xc = cols[:, None] + 0.5
-    yc = rows[:, None] + 0.5
-    w = np.clip(np.nan_to_num(a * xc + b * yc + c, nan=1.0 / 3), 0.0, 1.0)
+    # Coefficients once per face, then one gather per pixel.
+    coef = np.concatenate(_edge_functions(np.asarray(xy, dtype=np.float64)[np.asarray(faces)]), axis=1)
+    k = coef[face]
+    w = k[:, 0:3] * (cols[:, None] + 0.5) + k[:, 3:6] * (rows[:, None] + 0.5) + k[:, 6:9]
+    w = np.clip(np.nan_to_num(w, nan=1.0 / 3), 0.0, 1.0)
     w /= np.maximum(w.sum(1, keepdims=True), 1e-12)
     return rows, cols, face, w
 
@@ -231,15 +238,14 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     vv = np.einsum("ij,ij->i", v, v)
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.where(vv[:, None] > 1e-12, v / vv[:, None], 0.0)
-    # float32 is ample at pixel scale and halves the memory traffic.
     fade32 = np.minimum(1.0, 2 * r).astype(np.float32)
     u32, v32, reach32 = u.astype(np.float32), v.astype(np.float32), reach.astype(np.float32)
     prio = np.zeros(s, np.int64) if priority is None else np.asarray(priority, np.int64)
     best = np.full(height * width, -1, dtype=np.int64)
-    for it, x, y, valid in _candidates(x0[live], x1[live], y0[live], y1[live]):
+    for it, bx, by, dx, dy, valid in _candidates(x0[live], x1[live], y0[live], y1[live]):
         g = live[it]
-        ox = x.astype(np.float32) + (0.5 - p0[g, 0, None]).astype(np.float32)
-        oy = y.astype(np.float32) + (0.5 - p0[g, 1, None]).astype(np.float32)
+        ox = (bx + 0.5 - p0[g, 0]).astype(np.float32)[:, None] + dx.astype(np.float32)
+        oy = (by + 0.5 - p0[g, 1]).astype(np.float32)[:, None] + dy.astype(np.float32)
         t = np.clip(ox * u32[g, 0, None] + oy * u32[g, 1, None], 0.0, 1.0)
         ex = ox - t * v32[g, 0, None]
         ey = oy - t * v32[g, 1, None]
@@ -247,7 +253,7 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
         i, k = np.nonzero(valid & (cov > 1.0 / 255))
         cq = np.round(cov[i, k] * 65535).astype(np.int64)
         key = (prio[g[i]] << 48) | (cq << 32) | g[i]
-        np.maximum.at(best, y[i, k] * width + x[i, k], key)
+        np.maximum.at(best, (by[i] + dy[k]) * width + bx[i] + dx[k], key)
     hit = np.flatnonzero(best >= 0)
     g = best[hit] & 0xFFFFFFFF
     cov = ((best[hit] >> 32) & 0xFFFF) / 65535.0

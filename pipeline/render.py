@@ -1,0 +1,606 @@
+"""The pictures of a plan: stress layout, 3-D preview, tool paths, input height field.
+
+numpy + Pillow only (no display, no matplotlib); arrays in, ``PIL.Image`` out.
+Drawing is vectorised in :mod:`pipeline.raster`; legends and bars in
+:mod:`pipeline.figure`. Top views (stress, tool paths, height field) put +y
+(north) up and record their mm-to-pixel map in ``image.info``:
+``px_per_mm`` and ``origin_px`` (the pixel position of x = y = 0 mm), so a
+caller can overlay or hit-test in millimetres.
+"""
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFilter
+
+from pipeline.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, colorbar, colormap, font,
+                             fmt_number, framed, nice_ceil, scale_bar, swatch, text_size)
+from pipeline.geometry import edge_index, edge_lengths, face_areas
+from pipeline.raster import dash_segments, draw_segments, pixel_barycentrics, rasterize_triangles
+
+__all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "heightfield_image",
+           "montage", "shaded_view"]
+
+_WHITE = 255.0
+
+
+class _Plan:
+    """Top-view map mm -> px: x to the right, +y (north) up, ``pad`` px margin."""
+
+    def __init__(self, lo, hi, px_per_mm, pad):
+        self.s = float(px_per_mm)
+        self.w = int(np.ceil((hi[0] - lo[0]) * self.s)) + 2 * pad
+        self.h = int(np.ceil((hi[1] - lo[1]) * self.s)) + 2 * pad
+        self.ox = pad - lo[0] * self.s
+        self.oy = pad + hi[1] * self.s
+
+    def px(self, xy):
+        xy = np.asarray(xy, dtype=np.float64)
+        return np.stack([self.ox + self.s * xy[..., 0], self.oy - self.s * xy[..., 1]], axis=-1)
+
+    def tag(self, img, body_xy):
+        img.info["px_per_mm"] = self.s
+        img.info["origin_px"] = (body_xy[0] + self.ox, body_xy[1] + self.oy)
+        return img
+
+
+def _scale(extent_mm, px_per_mm, max_px, long_px=1400):
+    """px/mm: the requested one (or one giving ``long_px`` on the longest side), capped by ``max_px``."""
+    ext = max(float(extent_mm), 1e-6)
+    s = px_per_mm if px_per_mm else long_px / ext
+    return min(s, max_px / ext)
+
+
+def _to_image(canvas):
+    return Image.fromarray(np.clip(np.round(canvas), 0, 255).astype(np.uint8))
+
+
+def _boundary_edges(faces):
+    """Edges used by exactly one face: (k, 2) int."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    return u[c == 1]
+
+
+def _pct(v):
+    return fmt_number(100 * v, 0.1)
+
+
+def _invalid_legend(img, x, y, n_high, n_low, total, s_min, s_max, what, fs):
+    frac = lambda n: f"{100 * n / max(total, 1):.1f} %"
+    y = swatch(img, x, y, INVALID_HIGH, f"> {_pct(s_max)} %: {n_high} {what} ({frac(n_high)})", fs)
+    return swatch(img, x, y, INVALID_LOW, f"< {_pct(s_min)} %: {n_low} {what} ({frac(n_low)})", fs)
+
+
+def _stat_lines(img, x, y, lines, fs):
+    draw = ImageDraw.Draw(img)
+    for s in lines:
+        draw.text((x, y), s, font=font(fs - 1), fill=MUTED)
+        y += int(fs * 1.45)
+    return y
+
+
+def _split_by_validity(sigma, s_min, s_max):
+    high = sigma > s_max
+    low = sigma < s_min
+    return high, low, ~(high | low)
+
+
+def _sigma_colors(sigma, s_min, s_max):
+    high, low, _ = _split_by_validity(sigma, s_min, s_max)
+    col = colormap(sigma, s_min, s_max, "shrink").astype(np.float64)
+    col[high] = INVALID_HIGH
+    col[low] = INVALID_LOW
+    return col
+
+
+def _face_sigma(n, faces, printing_edges, sigma):
+    """Shrink per face for the background tint: the mean of its printing edges;
+    faces without one (around fan centres) take the mean of their vertices' faces."""
+    fe = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1).reshape(-1, 2)
+    if len(printing_edges):
+        idx = edge_index(printing_edges, fe).reshape(-1, 3)
+    else:
+        idx = np.full((len(faces), 3), -1)
+    vals = np.where(idx >= 0, sigma[np.maximum(idx, 0)] if len(sigma) else 0.0, 0.0)
+    cnt = (idx >= 0).sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fs = vals.sum(1) / cnt
+        has = cnt > 0
+        num = np.bincount(faces[has].ravel(), np.repeat(fs[has], 3), minlength=n)
+        den = np.bincount(faces[has].ravel(), minlength=n)
+        vs = num / den
+        fs[~has] = np.nanmean(vs[faces[~has]], axis=1) if (~has).any() else fs[~has]
+    return fs
+
+
+def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=None, max_px=2000,
+                 title="", line_px=None):
+    """The flattened layout with printing edges coloured by shrink ratio (paper Fig. 1 right).
+
+    Parameters
+    ----------
+    xy : (n, 2) float, mm
+        Flat vertex positions (a third column is ignored).
+    printing_edges : (p, 2) int
+    sigma : (p,) float
+        Shrink ratio per printing edge, ``1 - target_length / flat_length``.
+    s_min, s_max : float
+        The material's shrink range; edges outside are drawn magenta (> s_max)
+        or black (< s_min) and counted in the legend.
+    faces : (m, 3) int, optional
+        When given, the sheet is filled with a pale tint of the local shrink and outlined.
+    px_per_mm : float, optional
+        Drawing scale; default gives ~1400 px on the longest side.
+    max_px : int
+        Cap on the drawing's longest side.
+    title : str
+    line_px : float, optional
+        Stroke width; default from the mean isoline spacing.
+
+    Returns
+    -------
+    PIL.Image (RGB) with ``info["px_per_mm"]`` and ``info["origin_px"]``.
+    """
+    xy = np.asarray(xy, dtype=np.float64)[:, :2]
+    edges = np.asarray(printing_edges, dtype=np.int64).reshape(-1, 2)
+    sigma = np.asarray(sigma, dtype=np.float64).reshape(-1)
+    faces = None if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    lo, hi = xy.min(0), xy.max(0)
+    size = hi - lo
+    plan = _Plan(lo, hi, _scale(size.max(), px_per_mm, max_px), pad=12)
+    canvas = np.full((plan.h, plan.w, 3), _WHITE)
+    p = plan.px(xy)
+    total_len = float(edge_lengths(xy, edges).sum()) if len(edges) else 0.0
+    area = float(face_areas(xy, faces).sum()) if faces is not None else 0.6 * float(size.prod())
+    spacing_px = area / max(total_len, 1e-9) * plan.s
+    lw = float(line_px) if line_px else float(np.clip(0.4 * spacing_px, 1.0, 3.5))
+
+    if faces is not None and len(faces):
+        fid = rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w))
+        fs = _face_sigma(len(xy), faces, edges, sigma)
+        # Faces are a few px across, so a flat tint per face reads as a smooth field.
+        tint = 0.28 * colormap(fs, s_min, s_max, "shrink") + 0.72 * 246.0
+        hit = fid >= 0
+        canvas[hit] = tint[fid[hit]]
+        b = _boundary_edges(faces)
+        draw_segments(canvas, p[b[:, 0]], p[b[:, 1]], (95, 95, 100), max(1.0, 0.6 * lw))
+    high, low, ok = _split_by_validity(sigma, s_min, s_max)
+    col = _sigma_colors(sigma, s_min, s_max)
+    draw_segments(canvas, p[edges[ok, 0]], p[edges[ok, 1]], col[ok], lw)
+    bad = ~ok
+    draw_segments(canvas, p[edges[bad, 0]], p[edges[bad, 1]], col[bad], max(1.6 * lw, 2.0))
+
+    n = len(sigma)
+    good = sigma[np.isfinite(sigma)]
+    sub = (f"flat layout {size[0]:.1f} x {size[1]:.1f} mm  |  {n} printing edges  |  "
+           f"invalid {100 * (high.sum() + low.sum()) / max(n, 1):.1f} %")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(_to_image(canvas), title or "shrink ratio", sub)
+    _, yb = colorbar(fig, lx, ly, 26, min(360, max(200, plan.h // 2)), "shrink", s_min, s_max,
+                     "shrink (%)", scale=100, fs=fs)
+    y = _invalid_legend(fig, lx, yb + fs, int(high.sum()), int(low.sum()), n, s_min, s_max,
+                        "edges", fs)
+    if len(good):
+        q = np.percentile(good, [5, 95])
+        _stat_lines(fig, lx, y + fs // 2, [f"mean {_pct(good.mean())} %",
+                                           f"p05-p95 {_pct(q[0])}-{_pct(q[1])} %",
+                                           f"min {_pct(good.min())}, max {_pct(good.max())} %"], fs)
+    scale_bar(fig, bxy[0] + 12, fy + fs, plan.s, min(0.4 * plan.w, 360), fs)
+    return plan.tag(fig, bxy)
+
+
+def _as_segments(paths):
+    """Polylines (list of (k, 2)) or an (t, 2, 2) array -> (p0, p1) each (s, 2)."""
+    if paths is None:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    if isinstance(paths, np.ndarray) and paths.ndim == 3:
+        return paths[:, 0, :2].astype(float), paths[:, -1, :2].astype(float)
+    p0 = [np.asarray(q, float)[:-1, :2] for q in paths if len(q) > 1]
+    p1 = [np.asarray(q, float)[1:, :2] for q in paths if len(q) > 1]
+    if not p0:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return np.concatenate(p0), np.concatenate(p1)
+
+
+def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_per_mm=None,
+                   max_px=2000, title=""):
+    """Tool paths coloured by shrink ratio, travel moves dashed, trace starts marked.
+
+    Parameters
+    ----------
+    traces : list of (k_i, 2) float, mm
+        Ordered printing paths of one layer.
+    sigma : list of (k_i - 1,) float
+        Shrink ratio per segment.
+    s_min, s_max : float
+        Valid shrink range; segments outside are magenta / black.
+    path_width_mm : float
+        Paths are drawn at 70 % of this width so neighbours stay distinguishable.
+    travel : list of (k, 2) float or (t, 2, 2) float, mm, optional
+        Non-printing moves (from, to).
+    px_per_mm, max_px, title : as in :func:`stress_image`.
+
+    Returns
+    -------
+    PIL.Image with ``info["px_per_mm"]`` and ``info["origin_px"]``.
+    """
+    traces = [np.asarray(t, dtype=np.float64)[:, :2] for t in traces]
+    p0, p1 = _as_segments(traces)
+    sig = np.concatenate([np.asarray(s, float).reshape(-1) for s in sigma]) if len(sigma) else np.zeros(0)
+    t0, t1 = _as_segments(travel)
+    pts = np.concatenate([p0, p1, t0, t1]) if len(p0) + len(t0) else np.zeros((1, 2))
+    lo, hi = pts.min(0), pts.max(0)
+    size = hi - lo
+    plan = _Plan(lo, hi, _scale(size.max(), px_per_mm, max_px), pad=16)
+    canvas = np.full((plan.h, plan.w, 3), _WHITE)
+    lw = 0.7 * path_width_mm * plan.s
+    high, low, ok = _split_by_validity(sig, s_min, s_max)
+    col = _sigma_colors(sig, s_min, s_max)
+    prio = np.where(ok, 0, 1)
+    draw_segments(canvas, plan.px(p0), plan.px(p1), col, lw, priority=prio)
+    if len(t0):
+        q0, q1, _ = dash_segments(plan.px(t0), plan.px(t1), 6.0, 4.0)
+        draw_segments(canvas, q0, q1, (120, 120, 125), 1.2)
+    starts = np.array([t[0] for t in traces if len(t)]).reshape(-1, 2)
+    d = max(7.0, 1.5 * lw)
+    sp = plan.px(starts)
+    draw_segments(canvas, sp, sp, INK, d + 3)
+    draw_segments(canvas, sp, sp, (40, 185, 80), d)
+    body = _to_image(canvas)
+    if 0 < len(traces) <= 40:
+        draw = ImageDraw.Draw(body)
+        for k, q in enumerate(sp):
+            draw.text((q[0] + d * 0.7, q[1] - d * 0.7 - 10), str(k + 1), font=font(13), fill=INK)
+
+    n = len(sig)
+    length_mm = float(np.linalg.norm(p1 - p0, axis=1).sum())
+    sub = (f"{len(traces)} traces  |  {n} segments  |  {length_mm / 1000:.2f} m of path per layer  |  "
+           f"{len(t0)} travel moves")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "tool paths", sub)
+    _, yb = colorbar(fig, lx, ly, 26, min(360, max(200, plan.h // 2)), "shrink", s_min, s_max,
+                     "shrink (%)", scale=100, fs=fs)
+    y = _invalid_legend(fig, lx, yb + fs, int(high.sum()), int(low.sum()), n, s_min, s_max,
+                        "segments", fs)
+    y = swatch(fig, lx, y, (40, 185, 80), "trace start", fs, shape="dot")
+    y = swatch(fig, lx, y, (120, 120, 125), "travel move", fs, shape="dash")
+    _stat_lines(fig, lx, y + fs // 2, [f"path width {fmt_number(path_width_mm, 0.01)} mm",
+                                       "(drawn at 70 %)"], fs)
+    scale_bar(fig, bxy[0] + 16, fy + fs, plan.s, min(0.4 * plan.w, 360), fs)
+    return plan.tag(fig, bxy)
+
+
+def _vertex_normals(vertices, faces):
+    """Area-weighted unit vertex normals: (n, 3)."""
+    v = vertices[faces]
+    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n = np.stack([np.bincount(faces.ravel(), np.repeat(fn[:, k], 3), minlength=len(vertices))
+                  for k in range(3)], axis=1)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def _project(p, rows):
+    """``p @ rows.T`` for (k, 3) by (j, 3), written out: BLAS threads make tall
+    thin products slow on small shared machines."""
+    r = np.asarray(rows, dtype=p.dtype)
+    return np.stack([p[:, 0] * r[j, 0] + p[:, 1] * r[j, 1] + p[:, 2] * r[j, 2]
+                     for j in range(len(r))], axis=1)
+
+
+def _camera(elevation_deg, azimuth_deg):
+    """Orthographic camera basis (right, up, view) as rows of a (3, 3) matrix.
+
+    Azimuth 0 looks north from the south; positive azimuth swings the camera
+    counter-clockwise seen from above. ``view`` points into the scene.
+    """
+    el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
+    right = np.array([np.cos(az), np.sin(az), 0.0])
+    fwd = np.array([-np.sin(az), np.cos(az), 0.0])
+    up = np.sin(el) * fwd + np.cos(el) * np.array([0.0, 0.0, 1.0])
+    view = np.cos(el) * fwd - np.sin(el) * np.array([0.0, 0.0, 1.0])
+    return np.stack([right, up, view])
+
+
+def _light(cam):
+    """Key light from the upper left, slightly behind the viewer (world coordinates)."""
+    l = -0.5 * cam[0] + 0.55 * cam[1] - 0.45 * cam[2] + np.array([0.0, 0.0, 0.5])
+    return l / np.linalg.norm(l)
+
+
+def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displacement",
+                base_color=(178, 188, 204), size_px=(800, 600), elevation_deg=35.0,
+                azimuth_deg=-30.0, fit=None, supersample=2, shadow=True):
+    """Shaded orthographic render of a triangle mesh (z-buffer, per-pixel normals).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm
+    faces : (m, 3) int
+    values : (n,) float, optional
+        Per-vertex scalar coloured with ``cmap`` over [vmin, vmax]; else ``base_color``.
+    size_px : (width, height)
+    elevation_deg, azimuth_deg : float
+        View direction (see :func:`_camera`).
+    fit : (center (2,), px_per_mm), optional
+        Screen placement; pass the same to several calls to render them at one
+        scale. Default fits this mesh with a margin.
+    supersample : int
+        Render at this factor and box-filter down (anti-aliased silhouettes).
+    shadow : bool
+        Soft shadow cast on the plane under the lowest point.
+
+    Returns
+    -------
+    PIL.Image (RGBA, transparent background) and the ``fit`` used.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    cam = _camera(elevation_deg, azimuth_deg)
+    scr = _project(v, cam)
+    if fit is None:
+        fit = view_fit([v], size_px, elevation_deg, azimuth_deg)
+    (cx, cy), s = fit
+    W, H = size_px
+    ss = int(supersample)
+    Ws, Hs = W * ss, H * ss
+    pxy = np.stack([Ws / 2 + (scr[:, 0] - cx) * s * ss, Hs / 2 - (scr[:, 1] - cy) * s * ss], 1)
+    fid = rasterize_triangles(pxy, scr[:, 2], faces, (Hs, Ws))
+    rows, cols, f, w = pixel_barycentrics(pxy, faces, fid)
+    vn = _vertex_normals(v, faces).astype(np.float32)
+    w = w.astype(np.float32)
+    fv = faces[f]
+    n = (w[:, 0:1] * vn[fv[:, 0]] + w[:, 1:2] * vn[fv[:, 1]] + w[:, 2:3] * vn[fv[:, 2]])
+    n /= np.maximum(np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2), 1e-12)[:, None]
+    # Two-sided: a normal facing away from the camera belongs to the hidden side.
+    n *= np.where(_project(n, cam[2:3])[:, 0] > 0, -1.0, 1.0).astype(np.float32)[:, None]
+    L = _light(cam)
+    Hv = L - cam[2]
+    Hv /= np.linalg.norm(Hv)
+    diff = np.clip(_project(n, L[None])[:, 0], 0, 1)
+    fill = 0.5 * (1 + n[:, 2])  # sky light: surfaces looking up get more
+    spec = np.clip(_project(n, Hv[None])[:, 0], 0, 1) ** 48
+    if values is None:
+        base = np.asarray(base_color, np.float32)[None, :]
+    else:
+        val = (w * np.asarray(values, np.float32)[fv]).sum(1)
+        base = colormap(val, vmin, vmax, cmap).astype(np.float32)
+    shade = 0.22 + 0.16 * fill + 0.68 * diff
+    rgb = base * shade[:, None] + 55.0 * spec[:, None]
+    img = np.zeros((Hs, Ws, 4), np.uint8)
+    if shadow:
+        img[..., 3] = _shadow(v, faces, cam, L, (cx, cy), s * ss, (Hs, Ws))
+    img[rows, cols, :3] = np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
+    img[rows, cols, 3] = 255
+    out = Image.fromarray(img, "RGBA")
+    if ss > 1:
+        out = out.reduce(ss)
+    return out, fit
+
+
+def _shadow(v, faces, cam, L, center, s, shape, k=4):
+    """Alpha (uint8, ``shape``) of a soft shadow: the mesh projected along the
+    light onto its base plane, drawn at 1/k resolution since it is blurred."""
+    z0 = v[:, 2].min()
+    g = v - ((v[:, 2] - z0) / max(L[2], 0.2))[:, None] * L
+    scr = _project(g, cam)
+    H, W = shape
+    h, w = H // k, W // k
+    pxy = np.stack([w / 2 + (scr[:, 0] - center[0]) * s / k, h / 2 - (scr[:, 1] - center[1]) * s / k], 1)
+    # Dense meshes: splatting the vertices covers the footprint; faces wider
+    # than a pixel are rasterised so coarse meshes have no holes.
+    c = np.floor(pxy).astype(np.int64)
+    inb = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
+    mask = np.zeros((h, w), bool)
+    mask[c[inb, 1], c[inb, 0]] = True
+    ext = np.zeros(len(faces))
+    for k in range(2):
+        q = pxy[:, k][faces]
+        ext = np.maximum(ext, np.maximum(np.maximum(q[:, 0], q[:, 1]), q[:, 2])
+                         - np.minimum(np.minimum(q[:, 0], q[:, 1]), q[:, 2]))
+    big = faces[ext > 1.0]
+    if len(big):
+        mask |= rasterize_triangles(pxy, np.zeros(len(pxy)), big, (h, w)) >= 0
+    m = Image.fromarray(np.where(mask, 70, 0).astype(np.uint8))
+    m = m.filter(ImageFilter.GaussianBlur(max(2.0, 0.012 * w)))
+    return np.asarray(m.resize((W, H), Image.BILINEAR))
+
+
+def view_fit(vertex_sets, size_px, elevation_deg=35.0, azimuth_deg=-30.0, margin=0.08):
+    """Screen centre and px/mm that fit all ``vertex_sets`` ((n, 3) mm each) into ``size_px``."""
+    cam = _camera(elevation_deg, azimuth_deg)
+    scr = np.concatenate([_project(np.asarray(v, np.float64), cam) for v in vertex_sets])
+    lo, hi = scr[:, :2].min(0), scr[:, :2].max(0)
+    span = np.maximum(hi - lo, 1e-9)
+    s = min(size_px[0] * (1 - 2 * margin) / span[0], size_px[1] * (1 - 2 * margin) / span[1])
+    return (0.5 * (lo + hi)), s
+
+
+def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, title="",
+                  panel_px=(760, 600), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None):
+    """Target and simulated shape side by side in one oblique view, error as colour.
+
+    Parameters
+    ----------
+    target_vertices : (n, 3) float, mm
+    faces : (m, 3) int
+    simulated_vertices : (n, 3) float, mm
+        Forward-simulation result, rigidly aligned to the target.
+    displacement_mm : (n,) float
+        Distance of each simulated vertex from its target, mm.
+    title : str
+    panel_px : (width, height) of each of the two views.
+    elevation_deg, azimuth_deg : view direction (35 degrees above the horizon by default).
+    vmax_mm : float, optional
+        Top of the colour scale; default a round number above the maximum.
+
+    Returns
+    -------
+    PIL.Image (RGB).
+    """
+    tv = np.asarray(target_vertices, np.float64)
+    sv = np.asarray(simulated_vertices, np.float64)
+    disp = np.asarray(displacement_mm, np.float64).reshape(-1)
+    faces = np.asarray(faces, np.int64)
+    fin = disp[np.isfinite(disp)]
+    mean_d = float(fin.mean()) if len(fin) else float("nan")
+    max_d = float(fin.max()) if len(fin) else float("nan")
+    vmax = float(vmax_mm) if vmax_mm else nice_ceil(max(max_d if np.isfinite(max_d) else 0, 0.1))
+    fit = view_fit([tv, sv], panel_px, elevation_deg, azimuth_deg)
+    a, _ = shaded_view(tv, faces, None, size_px=panel_px, elevation_deg=elevation_deg,
+                       azimuth_deg=azimuth_deg, fit=fit)
+    b, _ = shaded_view(sv, faces, disp, 0.0, vmax, "displacement", size_px=panel_px,
+                       elevation_deg=elevation_deg, azimuth_deg=azimuth_deg, fit=fit)
+    fs = 16
+    label_h = 34
+    pw, ph = panel_px
+    body = Image.new("RGB", (2 * pw, ph + label_h), (255, 255, 255))
+    for k, (im, label) in enumerate([(a, "target"),
+                                     (b, f"simulated (mean {mean_d:.2f} mm, max {max_d:.2f} mm)")]):
+        body.paste(im, (k * pw, label_h), im)
+        tw = text_size(label, font(fs))[0]
+        ImageDraw.Draw(body).text((k * pw + (pw - tw) / 2, 6), label, font=font(fs), fill=INK)
+    ImageDraw.Draw(body).line([pw, label_h, pw, ph + label_h - 10], fill=(225, 225, 228), width=1)
+    diam = np.ptp(tv[:, :2], axis=0)
+    sub = (f"target {diam[0]:.0f} x {diam[1]:.0f} x {np.ptp(tv[:, 2]):.1f} mm  |  {len(faces)} triangles  |  "
+           f"view {elevation_deg:.0f} deg above the horizon")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "preview", sub, legend_w=170,
+                                              legend_min_h=300, footer_h=50, fs=fs)
+    colorbar(fig, lx, ly + label_h, 24, min(320, ph - 80), "displacement", 0.0, vmax,
+             "displacement (mm)", fs=fs)
+    scale_bar(fig, bxy[0] + 20, fy + 12, fit[1], 0.35 * pw, fs)
+    ImageDraw.Draw(fig).text((bxy[0] + pw + 20, fy + 2), "horizontal scale at the view plane",
+                             font=font(fs - 3), fill=MUTED)
+    return fig
+
+
+def _fill_nearest(z):
+    from scipy import ndimage
+
+    bad = ~np.isfinite(z)
+    if not bad.any():
+        return z
+    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return z[tuple(idx)]
+
+
+def _hillshade(z, pixel_mm, azimuth_deg=315.0, altitude_deg=45.0):
+    """Lambertian hillshade (0..1) of a grid in mm; light from the north-west by default."""
+    gy, gx = np.gradient(z, pixel_mm)  # rows run south, so -gy is the northward slope
+    nx, ny, nz = -gx, gy, np.ones_like(z)
+    norm = np.sqrt(nx * nx + ny * ny + 1.0)
+    az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
+    lx, ly, lz = np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)
+    return np.clip((nx * lx + ny * ly + nz * lz) / norm, 0.0, 1.0)
+
+
+def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_mm=None,
+                      long_px=900):
+    """Hillshaded height field with isolines and the peaks that simplification removed.
+
+    Parameters
+    ----------
+    z : (rows, cols) float, mm
+        Heights, NaN outside the footprint; row 0 is north.
+    removed_peaks : iterable of dict with ``x_mm``, ``y_mm``, ``prominence_mm``
+        Positions as in :class:`pipeline.geometry.HeightField` (x = col * pixel_mm,
+        y = (rows - 1 - row) * pixel_mm); drawn as red rings sized by prominence.
+    pixel_mm : float
+    title : str
+    isoline_step_mm : float, optional
+        Isoline spacing; default a round step giving ~12 lines. Every fifth is bold.
+    long_px : int
+        Longest side of the picture.
+
+    Returns
+    -------
+    PIL.Image with ``info["px_per_mm"]`` and ``info["origin_px"]``.
+    """
+    import contourpy
+
+    z = np.asarray(z, dtype=np.float64)
+    rows, cols = z.shape
+    valid = np.isfinite(z)
+    zf = _fill_nearest(z)
+    zmax = float(np.nanmax(z)) if valid.any() else 1.0
+    zmin = float(np.nanmin(z)) if valid.any() else 0.0
+    f = long_px / max(rows, cols)  # display px per grid sample
+    W, H = int(round(cols * f)), int(round(rows * f))
+    shade = _hillshade(zf, pixel_mm)
+    base = colormap(zf, zmin, zmax, "height").astype(np.float64)
+    rgb = base * (0.45 + 0.65 * shade[..., None])
+    big = Image.fromarray(np.clip(rgb, 0, 255).astype(np.uint8)).resize((W, H), Image.BICUBIC)
+    alpha = Image.fromarray((valid * 255).astype(np.uint8)).resize((W, H), Image.BILINEAR)
+    a = np.asarray(alpha, np.float64)[..., None] / 255.0
+    canvas = np.asarray(big, np.float64) * a + _WHITE * (1 - a)
+
+    step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
+    levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)
+    if len(levels):
+        gen = contourpy.contour_generator(z=np.ma.masked_invalid(z), line_type="SeparateCode")
+        for k, lev in enumerate(levels):
+            segs = [line for line in gen.lines(lev)[0] if len(line) > 1]
+            if not segs:
+                continue
+            q0 = np.concatenate([s[:-1] for s in segs])
+            q1 = np.concatenate([s[1:] for s in segs])
+            bold = abs(lev / step / 5 - round(lev / step / 5)) < 1e-6
+            draw_segments(canvas, (q0 + 0.5) * f, (q1 + 0.5) * f, (70, 52, 40),
+                          1.5 if bold else 0.8)
+    peaks = list(removed_peaks)
+    if peaks:
+        c = np.array([[p["x_mm"] / pixel_mm, rows - 1 - p["y_mm"] / pixel_mm] for p in peaks])
+        prom = np.array([float(p.get("prominence_mm", 0.0)) for p in peaks])
+        r = 5.0 + 3.0 * np.sqrt(np.maximum(prom, 0))
+        ang = np.linspace(0, 2 * np.pi, 33)
+        ring = (c[:, None, :] + 0.5) * f + r[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)
+        draw_segments(canvas, ring[:, :-1].reshape(-1, 2), ring[:, 1:].reshape(-1, 2),
+                      (215, 25, 35), 2.0)
+    plan_s = f / pixel_mm
+    sub = (f"{cols * pixel_mm:.0f} x {rows * pixel_mm:.0f} mm  |  height {zmin:.1f}-{zmax:.1f} mm  |  "
+           f"{cols} x {rows} samples at {fmt_number(pixel_mm, 0.01)} mm")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(_to_image(canvas), title or "height field", sub,
+                                              legend_w=250, legend_min_h=360)
+    _, yb = colorbar(fig, lx, ly, 26, min(300, max(180, H // 2)), "height", zmin, zmax,
+                     "height (mm)", fs=fs)
+    y = swatch(fig, lx, yb + fs, (70, 52, 40), f"isolines every {fmt_number(step)} mm", fs)
+    if peaks:
+        y = swatch(fig, lx, y, (215, 25, 35),
+                   f"{len(peaks)} peaks simplified", fs, shape="ring")
+        _stat_lines(fig, lx, y, [f"prominence <= {prom.max():.1f} mm", "(not reproduced)"], fs)
+    scale_bar(fig, bxy[0], fy + fs, plan_s, min(0.4 * W, 300), fs)
+    fig.info["px_per_mm"] = plan_s
+    fig.info["origin_px"] = (bxy[0] + 0.5 * f, bxy[1] + (rows - 0.5) * f)
+    return fig
+
+
+def montage(images, labels, height_px=420, pad_px=18, title=""):
+    """Images side by side at one height, each with a label above (README figure).
+
+    Parameters
+    ----------
+    images : list of PIL.Image
+    labels : list of str (same length)
+    height_px : int
+        Every image is scaled to this height.
+    title : str, optional
+
+    Returns
+    -------
+    PIL.Image (RGB).
+    """
+    ims = [im.convert("RGB") for im in images]
+    ims = [im.resize((max(1, round(im.width * height_px / im.height)), height_px), Image.LANCZOS)
+           for im in ims]
+    fs = 18
+    label_h = int(fs * 1.8)
+    title_h = int(fs * 2.4) if title else 0
+    w = pad_px + sum(im.width + pad_px for im in ims)
+    h = title_h + label_h + height_px + pad_px
+    out = Image.new("RGB", (w, h), (255, 255, 255))
+    draw = ImageDraw.Draw(out)
+    if title:
+        draw.text((pad_px, pad_px // 2), title, font=font(int(fs * 1.25)), fill=INK)
+    x = pad_px
+    for k, (im, label) in enumerate(zip(ims, labels)):
+        draw.text((x, title_h + 4), f"{k + 1}. {label}" if len(ims) > 1 else label, font=font(fs),
+                  fill=INK)
+        out.paste(im, (x, title_h + label_h))
+        x += im.width + pad_px
+    return out
