@@ -70,7 +70,7 @@ def thickness_values(thickness_min_mm, thickness_max_mm, n):
     return np.round(np.linspace(thickness_min_mm, thickness_max_mm, n), 3)
 
 
-def layout_plates(thicknesses_mm, repeats, bed_mm, plates=None, gap_mm=3.0, margin_mm=5.0,
+def layout_plates(thicknesses_mm, repeats, bed_mm, plates=None, gap_mm=3.0, margin_mm=3.0,
                   length_mm=LENGTH_MM, width_mm=WIDTH_MM):
     """Place ``len(thicknesses) * repeats`` rectangles on one or more bed loads.
 

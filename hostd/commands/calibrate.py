@@ -28,7 +28,7 @@ PROG = "hostd calibrate"
 def add_parser(subparsers):
     parser = subparsers.add_parser(
         "calibrate", help="print calibration rectangles and fit the measured shrink curve",
-        description=__doc__.split("\n\n")[1].replace("\n", " "))
+        description=__doc__.split("\n\n")[1].replace("\n", " ").replace("``", "\""))
     sub = parser.add_subparsers(dest="calibrate_step", metavar="STEP")
     p = sub.add_parser("print", help="write calibration G-code, layout SVG and a CSV template",
                        description="Write DIR/calibration.gcode (or one file per plate when "
