@@ -17,6 +17,16 @@ filament retracted by ``retraction.length_mm`` (the shipped profiles end the
 purge with a retraction), so the first trace only unretracts; the end G-code
 does the final retraction.
 
+Arc fitting (``toolpath.arc_tolerance_mm > 0``, see :mod:`pipeline.arcs`)
+writes G2/G3 with the Z and E change spread along the arc, which Marlin runs
+with ARC_SUPPORT (on by default in Marlin 2).
+
+Viewer comments: Cura's ``;FLAVOR:``, ``;TIME:``, ``;Filament used:``,
+``;LAYER_COUNT:``, ``;LAYER:n`` (0-based, so layer index ``i_l = n + 1``) and
+``;TYPE:``; PrusaSlicer's ``;LAYER_CHANGE``/``;Z:``/``;HEIGHT:`` and its
+``; filament used [mm] =`` / ``[g]`` / ``; estimated printing time`` lines.
+The time estimate is :mod:`pipeline.printtime`'s trapezoid model.
+
 Strings are built per field with vectorised integer formatting (lookup tables
 for the fractional digits) over all moves of a layer at once; only the travel
 blocks between traces are built in a Python loop over traces.
