@@ -181,18 +181,29 @@ def swatch(img, x, y, color, text, fs=14, shape="line"):
     return y + int(th * 1.6)
 
 
-def framed(body, title, subtitle="", legend_w=230, legend_min_h=420, footer_h=56, fs=None):
+def base_font_size(body_size):
+    """Base font size (px) for a figure around a body of ``body_size`` (w, h)."""
+    return int(np.clip(round(max(body_size) / 60), 14, 22))
+
+
+def framed(body, title, subtitle="", legend_w=230, legend_min_h=420, footer_h=56, fs=None,
+           legend_texts=()):
     """Place ``body`` (PIL image) in a white figure with a title band, legend column and footer.
 
-    Returns (figure, body_xy, legend_xy, footer_xy, fs): where the body was pasted,
-    where the legend column and the footer band start, and the base font size.
+    The legend column is at least ``legend_w`` wide and wide enough for each of
+    ``legend_texts`` after a swatch. Returns (figure, body_xy, legend_xy,
+    footer_xy, fs): where the body was pasted, where the legend column and the
+    footer band start, and the base font size.
     """
     bw, bh = body.size
-    fs = fs or int(np.clip(round(max(bw, bh) / 60), 14, 22))
+    fs = fs or base_font_size(body.size)
+    need = [text_size(t, font(fs))[0] + 28 + fs for t in legend_texts]
+    legend_w = max([legend_w] + need)
     title_h = int(fs * 1.6) + (int(fs * 1.3) if subtitle else 0) + fs
     pad = fs
     h = title_h + max(bh, legend_min_h) + footer_h
-    w = pad + bw + pad + legend_w
+    w = max(pad + bw + pad + legend_w, text_size(title, font(int(fs * 1.3)))[0] + 2 * pad,
+            text_size(subtitle, font(fs - 1))[0] + 2 * pad)
     fig = Image.new("RGB", (w, h), (255, 255, 255))
     draw = ImageDraw.Draw(fig)
     draw.text((pad, int(fs * 0.6)), title, font=font(int(fs * 1.3)), fill=INK)
@@ -200,4 +211,4 @@ def framed(body, title, subtitle="", legend_w=230, legend_min_h=420, footer_h=56
         draw.text((pad, int(fs * 0.6) + int(fs * 1.6)), subtitle, font=font(fs - 1), fill=MUTED)
     by = title_h + (max(bh, legend_min_h) - bh) // 2
     fig.paste(body, (pad, by))
-    return fig, (pad, by), (pad + bw + pad, title_h), (pad, title_h + max(bh, legend_min_h)), fs
+    return fig, (pad, by), (w - legend_w, title_h), (pad, title_h + max(bh, legend_min_h)), fs

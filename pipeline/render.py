@@ -20,6 +20,9 @@ __all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "heigh
            "montage", "shaded_view"]
 
 _WHITE = 255.0
+START_COLOR = (40, 185, 80)
+TRAVEL_COLOR = (110, 110, 118)
+PEAK_COLOR = (215, 25, 35)
 
 
 class _Plan:
@@ -64,10 +67,16 @@ def _pct(v):
     return fmt_number(100 * v, 0.1)
 
 
-def _invalid_legend(img, x, y, n_high, n_low, total, s_min, s_max, what, fs):
+def _invalid_texts(n_high, n_low, total, s_min, s_max, what):
     frac = lambda n: f"{100 * n / max(total, 1):.1f} %"
-    y = swatch(img, x, y, INVALID_HIGH, f"> {_pct(s_max)} %: {n_high} {what} ({frac(n_high)})", fs)
-    return swatch(img, x, y, INVALID_LOW, f"< {_pct(s_min)} %: {n_low} {what} ({frac(n_low)})", fs)
+    name = lambda n: what if n != 1 else what[:-1]
+    return [f"> {_pct(s_max)} %: {n_high} {name(n_high)} ({frac(n_high)})",
+            f"< {_pct(s_min)} %: {n_low} {name(n_low)} ({frac(n_low)})"]
+
+
+def _invalid_legend(img, x, y, texts, fs):
+    y = swatch(img, x, y, INVALID_HIGH, texts[0], fs)
+    return swatch(img, x, y, INVALID_LOW, texts[1], fs)
 
 
 def _stat_lines(img, x, y, lines, fs):
@@ -108,7 +117,9 @@ def _face_sigma(n, faces, printing_edges, sigma):
         num = np.bincount(faces[has].ravel(), np.repeat(fs[has], 3), minlength=n)
         den = np.bincount(faces[has].ravel(), minlength=n)
         vs = num / den
-        fs[~has] = np.nanmean(vs[faces[~has]], axis=1) if (~has).any() else fs[~has]
+        around = vs[faces[~has]]
+        ok = np.isfinite(around)
+        fs[~has] = np.where(ok, around, 0.0).sum(1) / ok.sum(1)
     return fs
 
 
@@ -173,17 +184,18 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     good = sigma[np.isfinite(sigma)]
     sub = (f"flat layout {size[0]:.1f} x {size[1]:.1f} mm  |  {n} printing edges  |  "
            f"invalid {100 * (high.sum() + low.sum()) / max(n, 1):.1f} %")
-    fig, bxy, (lx, ly), (fx, fy), fs = framed(_to_image(canvas), title or "shrink ratio", sub)
+    texts = _invalid_texts(int(high.sum()), int(low.sum()), n, s_min, s_max, "edges")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(_to_image(canvas), title or "shrink ratio", sub,
+                                              legend_texts=texts)
     _, yb = colorbar(fig, lx, ly, 26, min(360, max(200, plan.h // 2)), "shrink", s_min, s_max,
                      "shrink (%)", scale=100, fs=fs)
-    y = _invalid_legend(fig, lx, yb + fs, int(high.sum()), int(low.sum()), n, s_min, s_max,
-                        "edges", fs)
+    y = _invalid_legend(fig, lx, yb + fs, texts, fs)
     if len(good):
         q = np.percentile(good, [5, 95])
         _stat_lines(fig, lx, y + fs // 2, [f"mean {_pct(good.mean())} %",
                                            f"p05-p95 {_pct(q[0])}-{_pct(q[1])} %",
                                            f"min {_pct(good.min())}, max {_pct(good.max())} %"], fs)
-    scale_bar(fig, bxy[0] + 12, fy + fs, plan.s, min(0.4 * plan.w, 360), fs)
+    scale_bar(fig, bxy[0] + 12, fy + fs, plan.s, min(0.3 * plan.w, 600), fs)
     return plan.tag(fig, bxy)
 
 
@@ -238,32 +250,33 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     draw_segments(canvas, plan.px(p0), plan.px(p1), col, lw, priority=prio)
     if len(t0):
         q0, q1, _ = dash_segments(plan.px(t0), plan.px(t1), 6.0, 4.0)
-        draw_segments(canvas, q0, q1, (120, 120, 125), 1.2)
+        draw_segments(canvas, q0, q1, TRAVEL_COLOR, 1.2)
     starts = np.array([t[0] for t in traces if len(t)]).reshape(-1, 2)
-    d = max(7.0, 1.5 * lw)
+    d = max(11.0, 2.5 * lw)
     sp = plan.px(starts)
     draw_segments(canvas, sp, sp, INK, d + 3)
-    draw_segments(canvas, sp, sp, (40, 185, 80), d)
+    draw_segments(canvas, sp, sp, START_COLOR, d)
     body = _to_image(canvas)
-    if 0 < len(traces) <= 40:
+    if 0 < len(traces) <= 40:  # numbered in printing order while the numbers stay legible
         draw = ImageDraw.Draw(body)
         for k, q in enumerate(sp):
-            draw.text((q[0] + d * 0.7, q[1] - d * 0.7 - 10), str(k + 1), font=font(13), fill=INK)
+            draw.text((q[0] + 0.6 * d, q[1] - 0.6 * d - 14), str(k + 1), font=font(16), fill=INK,
+                      stroke_width=2, stroke_fill=(255, 255, 255))
 
     n = len(sig)
     length_mm = float(np.linalg.norm(p1 - p0, axis=1).sum())
     sub = (f"{len(traces)} traces  |  {n} segments  |  {length_mm / 1000:.2f} m of path per layer  |  "
            f"{len(t0)} travel moves")
-    fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "tool paths", sub)
+    texts = _invalid_texts(int(high.sum()), int(low.sum()), n, s_min, s_max, "segments")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "tool paths", sub, legend_texts=texts)
     _, yb = colorbar(fig, lx, ly, 26, min(360, max(200, plan.h // 2)), "shrink", s_min, s_max,
                      "shrink (%)", scale=100, fs=fs)
-    y = _invalid_legend(fig, lx, yb + fs, int(high.sum()), int(low.sum()), n, s_min, s_max,
-                        "segments", fs)
-    y = swatch(fig, lx, y, (40, 185, 80), "trace start", fs, shape="dot")
-    y = swatch(fig, lx, y, (120, 120, 125), "travel move", fs, shape="dash")
+    y = _invalid_legend(fig, lx, yb + fs, texts, fs)
+    y = swatch(fig, lx, y, START_COLOR, "trace start (numbered)", fs, shape="dot")
+    y = swatch(fig, lx, y, TRAVEL_COLOR, "travel move", fs, shape="dash")
     _stat_lines(fig, lx, y + fs // 2, [f"path width {fmt_number(path_width_mm, 0.01)} mm",
                                        "(drawn at 70 %)"], fs)
-    scale_bar(fig, bxy[0] + 16, fy + fs, plan.s, min(0.4 * plan.w, 360), fs)
+    scale_bar(fig, bxy[0] + 16, fy + fs, plan.s, min(0.3 * plan.w, 600), fs)
     return plan.tag(fig, bxy)
 
 
@@ -306,7 +319,7 @@ def _light(cam):
 
 def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displacement",
                 base_color=(178, 188, 204), size_px=(800, 600), elevation_deg=35.0,
-                azimuth_deg=-30.0, fit=None, supersample=2, shadow=True):
+                azimuth_deg=-30.0, fit=None, supersample=2, shadow=True, contour_mm=None):
     """Shaded orthographic render of a triangle mesh (z-buffer, per-pixel normals).
 
     Parameters
@@ -325,6 +338,8 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
         Render at this factor and box-filter down (anti-aliased silhouettes).
     shadow : bool
         Soft shadow cast on the plane under the lowest point.
+    contour_mm : float, optional
+        Draw faint height contours this far apart (helps read the shape).
 
     Returns
     -------
@@ -363,6 +378,15 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
         base = colormap(val, vmin, vmax, cmap).astype(np.float32)
     shade = 0.22 + 0.16 * fill + 0.68 * diff
     rgb = base * shade[:, None] + 55.0 * spec[:, None]
+    if contour_mm:
+        # A contour pixel is one whose height band differs from its right or lower neighbour.
+        band = np.full((Hs + 1, Ws + 1), np.iinfo(np.int32).min, np.int32)
+        band[rows, cols] = np.floor((w * v[fv, 2].astype(np.float32)).sum(1) / contour_mm)
+        b0 = band[rows, cols]
+        right, below = band[rows, cols + 1], band[rows + 1, cols]
+        edge = ((right != b0) & (right != np.iinfo(np.int32).min)) | \
+               ((below != b0) & (below != np.iinfo(np.int32).min))
+        rgb[edge] *= 0.72
     img = np.zeros((Hs, Ws, 4), np.uint8)
     if shadow:
         img[..., 3] = _shadow(v, faces, cam, L, (cx, cy), s * ss, (Hs, Ws))
@@ -413,7 +437,8 @@ def view_fit(vertex_sets, size_px, elevation_deg=35.0, azimuth_deg=-30.0, margin
 
 
 def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, title="",
-                  panel_px=(760, 600), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None):
+                  panel_px=(760, None), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None,
+                  contour_mm="auto"):
     """Target and simulated shape side by side in one oblique view, error as colour.
 
     Parameters
@@ -425,10 +450,12 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     displacement_mm : (n,) float
         Distance of each simulated vertex from its target, mm.
     title : str
-    panel_px : (width, height) of each of the two views.
+    panel_px : (width, height) of each of the two views; height None fits the shape.
     elevation_deg, azimuth_deg : view direction (35 degrees above the horizon by default).
     vmax_mm : float, optional
         Top of the colour scale; default a round number above the maximum.
+    contour_mm : float, "auto" or None
+        Faint height contours on both shapes ("auto": about ten over the height).
 
     Returns
     -------
@@ -442,31 +469,42 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     mean_d = float(fin.mean()) if len(fin) else float("nan")
     max_d = float(fin.max()) if len(fin) else float("nan")
     vmax = float(vmax_mm) if vmax_mm else nice_ceil(max(max_d if np.isfinite(max_d) else 0, 0.1))
-    fit = view_fit([tv, sv], panel_px, elevation_deg, azimuth_deg)
-    a, _ = shaded_view(tv, faces, None, size_px=panel_px, elevation_deg=elevation_deg,
-                       azimuth_deg=azimuth_deg, fit=fit)
-    b, _ = shaded_view(sv, faces, disp, 0.0, vmax, "displacement", size_px=panel_px,
-                       elevation_deg=elevation_deg, azimuth_deg=azimuth_deg, fit=fit)
+    height_mm = float(np.ptp(tv[:, 2])) if len(tv) else 0.0
+    if contour_mm == "auto":
+        contour_mm = nice_ceil(height_mm / 10) if height_mm > 0 else None
+    pw, ph = panel_px
+    if ph is None:  # fit the width, then take the height the shape needs (within reason)
+        (_, _), s = view_fit([tv, sv], (pw, 10 * pw), elevation_deg, azimuth_deg)
+        cam = _camera(elevation_deg, azimuth_deg)
+        sy = np.concatenate([_project(tv, cam[1:2]), _project(sv, cam[1:2])])
+        ph = int(np.clip(np.ptp(sy) * s / 0.84 + 1, 0.45 * pw, 1.1 * pw))
+    fit = view_fit([tv, sv], (pw, ph), elevation_deg, azimuth_deg)
+    kw = dict(size_px=(pw, ph), elevation_deg=elevation_deg, azimuth_deg=azimuth_deg, fit=fit,
+              contour_mm=contour_mm)
+    a, _ = shaded_view(tv, faces, None, **kw)
+    b, _ = shaded_view(sv, faces, disp, 0.0, vmax, "displacement", **kw)
     fs = 16
     label_h = 34
-    pw, ph = panel_px
     body = Image.new("RGB", (2 * pw, ph + label_h), (255, 255, 255))
+    draw = ImageDraw.Draw(body)
     for k, (im, label) in enumerate([(a, "target"),
                                      (b, f"simulated (mean {mean_d:.2f} mm, max {max_d:.2f} mm)")]):
         body.paste(im, (k * pw, label_h), im)
         tw = text_size(label, font(fs))[0]
-        ImageDraw.Draw(body).text((k * pw + (pw - tw) / 2, 6), label, font=font(fs), fill=INK)
-    ImageDraw.Draw(body).line([pw, label_h, pw, ph + label_h - 10], fill=(225, 225, 228), width=1)
+        draw.text((k * pw + (pw - tw) / 2, 6), label, font=font(fs), fill=INK)
+    draw.line([pw, label_h, pw, ph + label_h - 10], fill=(225, 225, 228), width=1)
     diam = np.ptp(tv[:, :2], axis=0)
-    sub = (f"target {diam[0]:.0f} x {diam[1]:.0f} x {np.ptp(tv[:, 2]):.1f} mm  |  {len(faces)} triangles  |  "
-           f"view {elevation_deg:.0f} deg above the horizon")
-    fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "preview", sub, legend_w=170,
-                                              legend_min_h=300, footer_h=50, fs=fs)
-    colorbar(fig, lx, ly + label_h, 24, min(320, ph - 80), "displacement", 0.0, vmax,
+    sub = (f"target {diam[0]:.0f} x {diam[1]:.0f} x {height_mm:.1f} mm  |  {len(faces)} triangles  |  "
+           f"view from {elevation_deg:.0f} deg above the horizon")
+    if contour_mm:
+        sub += f"  |  contours every {fmt_number(contour_mm)} mm"
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "preview", sub, legend_w=120,
+                                              legend_min_h=260, footer_h=50, fs=fs,
+                                              legend_texts=["displacement (mm)"])
+    colorbar(fig, lx, ly + label_h, 24, int(np.clip(ph - 90, 150, 320)), "displacement", 0.0, vmax,
              "displacement (mm)", fs=fs)
-    scale_bar(fig, bxy[0] + 20, fy + 12, fit[1], 0.35 * pw, fs)
-    ImageDraw.Draw(fig).text((bxy[0] + pw + 20, fy + 2), "horizontal scale at the view plane",
-                             font=font(fs - 3), fill=MUTED)
+    x = scale_bar(fig, bxy[0] + 20, fy + 12, fit[1], 0.35 * pw, fs)
+    ImageDraw.Draw(fig).text((x + 8, fy + 6), "(across the view)", font=font(fs - 3), fill=MUTED)
     return fig
 
 
@@ -551,7 +589,7 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
         ang = np.linspace(0, 2 * np.pi, 33)
         ring = (c[:, None, :] + 0.5) * f + r[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)
         draw_segments(canvas, ring[:, :-1].reshape(-1, 2), ring[:, 1:].reshape(-1, 2),
-                      (215, 25, 35), 2.0)
+                      PEAK_COLOR, 2.0)
     plan_s = f / pixel_mm
     sub = (f"{cols * pixel_mm:.0f} x {rows * pixel_mm:.0f} mm  |  height {zmin:.1f}-{zmax:.1f} mm  |  "
            f"{cols} x {rows} samples at {fmt_number(pixel_mm, 0.01)} mm")
@@ -561,7 +599,7 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
                      "height (mm)", fs=fs)
     y = swatch(fig, lx, yb + fs, (70, 52, 40), f"isolines every {fmt_number(step)} mm", fs)
     if peaks:
-        y = swatch(fig, lx, y, (215, 25, 35),
+        y = swatch(fig, lx, y, PEAK_COLOR,
                    f"{len(peaks)} peaks simplified", fs, shape="ring")
         _stat_lines(fig, lx, y, [f"prominence <= {prom.max():.1f} mm", "(not reproduced)"], fs)
     scale_bar(fig, bxy[0], fy + fs, plan_s, min(0.4 * W, 300), fs)
