@@ -183,7 +183,6 @@ class Firmware:
             progress = self._read_lines()
             if self.ring and self._run_head(now):
                 progress = True
-        self.stats["max_queue"] = max(self.stats["max_queue"], len(self.ring))
         self._reports(now)
 
     def next_wakeup(self, now):
@@ -237,6 +236,7 @@ class Firmware:
         elif good is not None:
             return self._line_error("No Line Number with checksum")
         self.ring.append([number, text, arrival])
+        self.stats["max_queue"] = max(self.stats["max_queue"], len(self.ring))
         self.unacked += 1
         self.stats["max_unacked"] = max(self.stats["max_unacked"], self.unacked)
 

@@ -314,7 +314,11 @@ class Printer:
         return self.firmware_info
 
     def _connect(self):
-        self._drop_port()
+        if self._serial is not None:
+            self._drop_port()
+            # A board resets when its port is opened; closing and reopening within a
+            # blink may not register as a new open (a pty certainly does not).
+            time.sleep(self.settings.reopen_delay_s)
         self._set_state(CONNECTING)
         self._reset_stream()
         deadline = time.monotonic() + self.settings.open_timeout_s

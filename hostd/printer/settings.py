@@ -55,6 +55,7 @@ class LinkSettings:
     max_in_flight_lines: int = 0        # 0 = the firmware's command buffer (from ok B..)
     open_timeout_s: float = 5.0         # port must appear/open within this
     reset_wait_s: float = 2.5           # wait this long for 'start' after opening
+    reopen_delay_s: float = 0.1         # closed->reopened gap, so the board sees the close
     handshake_timeout_s: float = 2.0    # per probe (M110 / M115) while connecting
     handshake_attempts: int = 4
     ok_timeout_s: float = 10.0          # silence with lines in flight -> recovery

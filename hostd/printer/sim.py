@@ -151,6 +151,8 @@ class Simulator:
             firmware.step(now)
         if firmware.fault:
             self._fault(firmware.fault, now)
+            if self.endpoint.master is None:
+                return
         self._queue_output(now)
         self._flush_output(now)
 
@@ -169,6 +171,9 @@ class Simulator:
         elif kind == "disconnect":
             # The device vanishes (USB unplugged) and comes back later under the same link.
             self.endpoint.close(unlink=True)
+            self.firmware.out.clear()
+            self._out.clear()
+            self._in.clear()
             self._host = False
             self._reopen_at = now + self.config.reconnect_s
             self.firmware.reset(now)
