@@ -22,13 +22,12 @@ _BAND = 1 << 14
 
 
 def _round_up(n):
-    """Round box sizes up a geometric ladder (<= 1/8 waste) to keep groups few."""
+    """Round box sizes up a ladder of four steps per octave above 8 (<= 25 % waste),
+    so boxes fall into few groups and the per-group overhead stays small."""
     n = np.asarray(n, dtype=np.int64)
-    small = n <= 16
-    e = np.floor(np.log2(np.maximum(n, 1) - 1e-9)).astype(np.int64) - 3
+    e = np.floor(np.log2(np.maximum(n, 2) - 1)).astype(np.int64) - 2
     step = np.left_shift(1, np.maximum(e, 0))
-    big = -(-n // step) * step
-    return np.where(small, n, big)
+    return np.where(n <= 8, n, -(-n // step) * step)
 
 
 def _split_bands(x0, x1, y0, y1):

@@ -560,13 +560,15 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     zmin = float(np.nanmin(z)) if valid.any() else 0.0
     f = long_px / max(rows, cols)  # display px per grid sample
     W, H = int(round(cols * f)), int(round(rows * f))
-    shade = _hillshade(zf, pixel_mm)
-    base = colormap(zf, zmin, zmax, "height").astype(np.float64)
-    rgb = base * (0.45 + 0.65 * shade[..., None])
-    big = Image.fromarray(np.clip(rgb, 0, 255).astype(np.uint8)).resize((W, H), Image.BICUBIC)
+    # Shade the bicubically resampled heights, not the samples: shading coarse
+    # samples and enlarging the result shows every sample as a facet.
+    zb = np.asarray(Image.fromarray(zf.astype(np.float32), "F").resize((W, H), Image.BICUBIC),
+                    np.float64)
+    shade = _hillshade(zb, pixel_mm * cols / W)
+    rgb = colormap(zb, zmin, zmax, "height") * (0.45 + 0.65 * shade[..., None])
     alpha = Image.fromarray((valid * 255).astype(np.uint8)).resize((W, H), Image.BILINEAR)
     a = np.asarray(alpha, np.float64)[..., None] / 255.0
-    canvas = np.asarray(big, np.float64) * a + _WHITE * (1 - a)
+    canvas = np.clip(rgb, 0, 255) * a + _WHITE * (1 - a)
 
     step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
     levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)
@@ -585,11 +587,11 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     if peaks:
         c = np.array([[p["x_mm"] / pixel_mm, rows - 1 - p["y_mm"] / pixel_mm] for p in peaks])
         prom = np.array([float(p.get("prominence_mm", 0.0)) for p in peaks])
-        r = 5.0 + 3.0 * np.sqrt(np.maximum(prom, 0))
+        r = 6.0 + 4.0 * np.sqrt(np.maximum(prom, 0))
         ang = np.linspace(0, 2 * np.pi, 33)
         ring = (c[:, None, :] + 0.5) * f + r[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)
         draw_segments(canvas, ring[:, :-1].reshape(-1, 2), ring[:, 1:].reshape(-1, 2),
-                      PEAK_COLOR, 2.0)
+                      PEAK_COLOR, 2.5)
     plan_s = f / pixel_mm
     sub = (f"{cols * pixel_mm:.0f} x {rows * pixel_mm:.0f} mm  |  height {zmin:.1f}-{zmax:.1f} mm  |  "
            f"{cols} x {rows} samples at {fmt_number(pixel_mm, 0.01)} mm")

@@ -223,7 +223,7 @@ def test_heightfield_image_rings_the_removed_peaks():
     assert not_blank(img)
     s = img.info["px_per_mm"]
     ox, oy = img.info["origin_px"]
-    r_px = 5.0 + 3.0 * np.sqrt(4.0)
+    r_px = 6.0 + 4.0 * np.sqrt(4.0)
     a = np.asarray(img).astype(int)
     ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
     px = np.round(ox + s * 50.0 + r_px * np.cos(ang) - 0.5).astype(int)
