@@ -9,12 +9,13 @@ caller can overlay or hit-test in millimetres.
 """
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFilter
+from PIL import Image, ImageDraw
 
 from pipeline.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, colorbar, colormap, font,
                              fmt_number, framed, nice_ceil, scale_bar, swatch, text_size)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
-from pipeline.raster import dash_segments, draw_segments, pixel_barycentrics, rasterize_triangles
+from pipeline.raster import dash_segments, draw_segments, rasterize_triangles
+from pipeline.shading import camera_basis, project, shaded_view, view_fit
 
 __all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "heightfield_image",
            "montage", "shaded_view"]
@@ -254,7 +255,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
         q0, q1, _ = dash_segments(plan.px(t0), plan.px(t1), 6.0, 4.0)
         draw_segments(canvas, q0, q1, TRAVEL_COLOR, 1.2)
     starts = np.array([t[0] for t in traces if len(t)]).reshape(-1, 2)
-    d = max(11.0, 2.5 * lw)
+    d = max(11.0, 2.5 * lw) if len(traces) <= 40 else max(7.0, 1.5 * lw)  # many: keep them small
     sp = plan.px(starts)
     draw_segments(canvas, sp, sp, INK, d + 3)
     draw_segments(canvas, sp, sp, START_COLOR, d)
@@ -280,162 +281,6 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
                                        "(drawn at 70 %)"], fs)
     scale_bar(fig, bxy[0] + 16, fy + fs, plan.s, min(0.3 * plan.w, 600), fs)
     return plan.tag(fig, bxy)
-
-
-def _vertex_normals(vertices, faces):
-    """Area-weighted unit vertex normals: (n, 3)."""
-    v = vertices[faces]
-    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    n = np.stack([np.bincount(faces.ravel(), np.repeat(fn[:, k], 3), minlength=len(vertices))
-                  for k in range(3)], axis=1)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-
-
-def _project(p, rows):
-    """``p @ rows.T`` for (k, 3) by (j, 3), written out: BLAS threads make tall
-    thin products slow on small shared machines."""
-    r = np.asarray(rows, dtype=p.dtype)
-    return np.stack([p[:, 0] * r[j, 0] + p[:, 1] * r[j, 1] + p[:, 2] * r[j, 2]
-                     for j in range(len(r))], axis=1)
-
-
-def _camera(elevation_deg, azimuth_deg):
-    """Orthographic camera basis (right, up, view) as rows of a (3, 3) matrix.
-
-    Azimuth 0 looks north from the south; positive azimuth swings the camera
-    counter-clockwise seen from above. ``view`` points into the scene.
-    """
-    el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
-    right = np.array([np.cos(az), np.sin(az), 0.0])
-    fwd = np.array([-np.sin(az), np.cos(az), 0.0])
-    up = np.sin(el) * fwd + np.cos(el) * np.array([0.0, 0.0, 1.0])
-    view = np.cos(el) * fwd - np.sin(el) * np.array([0.0, 0.0, 1.0])
-    return np.stack([right, up, view])
-
-
-def _light(cam):
-    """Key light from the upper left, slightly behind the viewer (world coordinates)."""
-    l = -0.5 * cam[0] + 0.55 * cam[1] - 0.45 * cam[2] + np.array([0.0, 0.0, 0.5])
-    return l / np.linalg.norm(l)
-
-
-def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displacement",
-                base_color=(178, 188, 204), size_px=(800, 600), elevation_deg=35.0,
-                azimuth_deg=-30.0, fit=None, supersample=2, shadow=True, contour_mm=None):
-    """Shaded orthographic render of a triangle mesh (z-buffer, per-pixel normals).
-
-    Parameters
-    ----------
-    vertices : (n, 3) float, mm
-    faces : (m, 3) int
-    values : (n,) float, optional
-        Per-vertex scalar coloured with ``cmap`` over [vmin, vmax]; else ``base_color``.
-    size_px : (width, height)
-    elevation_deg, azimuth_deg : float
-        View direction (see :func:`_camera`).
-    fit : (center (2,), px_per_mm), optional
-        Screen placement; pass the same to several calls to render them at one
-        scale. Default fits this mesh with a margin.
-    supersample : int
-        Render at this factor and box-filter down (anti-aliased silhouettes).
-    shadow : bool
-        Soft shadow cast on the plane under the lowest point.
-    contour_mm : float, optional
-        Draw faint height contours this far apart (helps read the shape).
-
-    Returns
-    -------
-    PIL.Image (RGBA, transparent background) and the ``fit`` used.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    cam = _camera(elevation_deg, azimuth_deg)
-    scr = _project(v, cam)
-    if fit is None:
-        fit = view_fit([v], size_px, elevation_deg, azimuth_deg)
-    (cx, cy), s = fit
-    W, H = size_px
-    ss = int(supersample)
-    Ws, Hs = W * ss, H * ss
-    pxy = np.stack([Ws / 2 + (scr[:, 0] - cx) * s * ss, Hs / 2 - (scr[:, 1] - cy) * s * ss], 1)
-    fid = rasterize_triangles(pxy, scr[:, 2], faces, (Hs, Ws))
-    rows, cols, f, w = pixel_barycentrics(pxy, faces, fid)
-    vn = _vertex_normals(v, faces).astype(np.float32)
-    w = w.astype(np.float32)
-    fv = faces[f]
-    n = (w[:, 0:1] * vn[fv[:, 0]] + w[:, 1:2] * vn[fv[:, 1]] + w[:, 2:3] * vn[fv[:, 2]])
-    n /= np.maximum(np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2), 1e-12)[:, None]
-    # Two-sided: a normal facing away from the camera belongs to the hidden side.
-    n *= np.where(_project(n, cam[2:3])[:, 0] > 0, -1.0, 1.0).astype(np.float32)[:, None]
-    L = _light(cam)
-    Hv = L - cam[2]
-    Hv /= np.linalg.norm(Hv)
-    diff = np.clip(_project(n, L[None])[:, 0], 0, 1)
-    fill = 0.5 * (1 + n[:, 2])  # sky light: surfaces looking up get more
-    spec = np.clip(_project(n, Hv[None])[:, 0], 0, 1) ** 48
-    if values is None:
-        base = np.asarray(base_color, np.float32)[None, :]
-    else:
-        val = (w * np.asarray(values, np.float32)[fv]).sum(1)
-        base = colormap(val, vmin, vmax, cmap).astype(np.float32)
-    shade = 0.22 + 0.16 * fill + 0.68 * diff
-    rgb = base * shade[:, None] + 55.0 * spec[:, None]
-    if contour_mm:
-        # A contour pixel is one whose height band differs from its right or lower neighbour.
-        band = np.full((Hs + 1, Ws + 1), np.iinfo(np.int32).min, np.int32)
-        band[rows, cols] = np.floor((w * v[fv, 2].astype(np.float32)).sum(1) / contour_mm)
-        b0 = band[rows, cols]
-        right, below = band[rows, cols + 1], band[rows + 1, cols]
-        edge = ((right != b0) & (right != np.iinfo(np.int32).min)) | \
-               ((below != b0) & (below != np.iinfo(np.int32).min))
-        rgb[edge] *= 0.72
-    img = np.zeros((Hs, Ws, 4), np.uint8)
-    if shadow:
-        img[..., 3] = _shadow(v, faces, cam, L, (cx, cy), s * ss, (Hs, Ws))
-    img[rows, cols, :3] = np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
-    img[rows, cols, 3] = 255
-    out = Image.fromarray(img, "RGBA")
-    if ss > 1:
-        out = out.reduce(ss)
-    return out, fit
-
-
-def _shadow(v, faces, cam, L, center, s, shape, k=4):
-    """Alpha (uint8, ``shape``) of a soft shadow: the mesh projected along the
-    light onto its base plane, drawn at 1/k resolution since it is blurred."""
-    z0 = v[:, 2].min()
-    g = v - ((v[:, 2] - z0) / max(L[2], 0.2))[:, None] * L
-    scr = _project(g, cam)
-    H, W = shape
-    h, w = H // k, W // k
-    pxy = np.stack([w / 2 + (scr[:, 0] - center[0]) * s / k, h / 2 - (scr[:, 1] - center[1]) * s / k], 1)
-    # Dense meshes: splatting the vertices covers the footprint; faces wider
-    # than a pixel are rasterised so coarse meshes have no holes.
-    c = np.floor(pxy).astype(np.int64)
-    inb = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
-    mask = np.zeros((h, w), bool)
-    mask[c[inb, 1], c[inb, 0]] = True
-    ext = np.zeros(len(faces))
-    for k in range(2):
-        q = pxy[:, k][faces]
-        ext = np.maximum(ext, np.maximum(np.maximum(q[:, 0], q[:, 1]), q[:, 2])
-                         - np.minimum(np.minimum(q[:, 0], q[:, 1]), q[:, 2]))
-    big = faces[ext > 1.0]
-    if len(big):
-        mask |= rasterize_triangles(pxy, np.zeros(len(pxy)), big, (h, w)) >= 0
-    m = Image.fromarray(np.where(mask, 70, 0).astype(np.uint8))
-    m = m.filter(ImageFilter.GaussianBlur(max(2.0, 0.012 * w)))
-    return np.asarray(m.resize((W, H), Image.BILINEAR))
-
-
-def view_fit(vertex_sets, size_px, elevation_deg=35.0, azimuth_deg=-30.0, margin=0.08):
-    """Screen centre and px/mm that fit all ``vertex_sets`` ((n, 3) mm each) into ``size_px``."""
-    cam = _camera(elevation_deg, azimuth_deg)
-    scr = np.concatenate([_project(np.asarray(v, np.float64), cam) for v in vertex_sets])
-    lo, hi = scr[:, :2].min(0), scr[:, :2].max(0)
-    span = np.maximum(hi - lo, 1e-9)
-    s = min(size_px[0] * (1 - 2 * margin) / span[0], size_px[1] * (1 - 2 * margin) / span[1])
-    return (0.5 * (lo + hi)), s
 
 
 def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, title="",
@@ -477,8 +322,8 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     pw, ph = panel_px
     if ph is None:  # fit the width, then take the height the shape needs (within reason)
         (_, _), s = view_fit([tv, sv], (pw, 10 * pw), elevation_deg, azimuth_deg)
-        cam = _camera(elevation_deg, azimuth_deg)
-        sy = np.concatenate([_project(tv, cam[1:2]), _project(sv, cam[1:2])])
+        cam = camera_basis(elevation_deg, azimuth_deg)
+        sy = np.concatenate([project(tv, cam[1:2]), project(sv, cam[1:2])])
         ph = int(np.clip(np.ptp(sy) * s / 0.84 + 1, 0.45 * pw, 1.1 * pw))
     fit = view_fit([tv, sv], (pw, ph), elevation_deg, azimuth_deg)
     kw = dict(size_px=(pw, ph), elevation_deg=elevation_deg, azimuth_deg=azimuth_deg, fit=fit,
@@ -612,8 +457,8 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     return fig
 
 
-def montage(images, labels, height_px=420, pad_px=18, title=""):
-    """Images side by side at one height, each with a label above (README figure).
+def montage(images, labels, height_px=420, pad_px=18, title="", columns=None):
+    """Images in a grid at one height per row, each with a numbered label above (README figure).
 
     Parameters
     ----------
@@ -622,6 +467,8 @@ def montage(images, labels, height_px=420, pad_px=18, title=""):
     height_px : int
         Every image is scaled to this height.
     title : str, optional
+    columns : int, optional
+        Images per row (default: all in one row).
 
     Returns
     -------
@@ -630,19 +477,21 @@ def montage(images, labels, height_px=420, pad_px=18, title=""):
     ims = [im.convert("RGB") for im in images]
     ims = [im.resize((max(1, round(im.width * height_px / im.height)), height_px), Image.LANCZOS)
            for im in ims]
+    cols = max(1, int(columns or len(ims)))
+    rows = [ims[k:k + cols] for k in range(0, len(ims), cols)]
     fs = 18
     label_h = int(fs * 1.8)
     title_h = int(fs * 2.4) if title else 0
-    w = pad_px + sum(im.width + pad_px for im in ims)
-    h = title_h + label_h + height_px + pad_px
-    out = Image.new("RGB", (w, h), (255, 255, 255))
+    cell_h = label_h + height_px + pad_px
+    w = max(pad_px + sum(im.width + pad_px for im in row) for row in rows)
+    out = Image.new("RGB", (w, title_h + cell_h * len(rows)), (255, 255, 255))
     draw = ImageDraw.Draw(out)
     if title:
         draw.text((pad_px, pad_px // 2), title, font=font(int(fs * 1.25)), fill=INK)
-    x = pad_px
     for k, (im, label) in enumerate(zip(ims, labels)):
-        draw.text((x, title_h + 4), f"{k + 1}. {label}" if len(ims) > 1 else label, font=font(fs),
-                  fill=INK)
-        out.paste(im, (x, title_h + label_h))
-        x += im.width + pad_px
+        r, c = divmod(k, cols)
+        x = pad_px + sum(q.width + pad_px for q in rows[r][:c])
+        y = title_h + r * cell_h
+        draw.text((x, y + 4), f"{k + 1}. {label}" if len(ims) > 1 else label, font=font(fs), fill=INK)
+        out.paste(im, (x, y + label_h))
     return out

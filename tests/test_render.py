@@ -253,6 +253,8 @@ def test_montage_puts_images_side_by_side_at_one_height():
     assert (np.abs(arr - [255, 0, 0]).max(2) == 0).sum() >= 300 * 150 * 0.9
     assert (np.abs(arr - [0, 0, 255]).max(2) == 0).sum() >= 75 * 150 * 0.9
     assert m.width >= 300 + 75 and m.height > 150
+    grid = render.montage([a, b, a], ["r", "b", "r"], height_px=100, columns=2)
+    assert grid.height > 2 * 100 and grid.width < 200 + 50 + 200 + 4 * 18
 
 
 # --- PLY -------------------------------------------------------------------------------------
