@@ -376,7 +376,7 @@ def _hillshade(z, pixel_mm, azimuth_deg=315.0, altitude_deg=45.0):
 
 
 def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_mm=None,
-                      long_px=900):
+                      long_px=900, removed_count=None):
     """Hillshaded height field with isolines and the peaks that simplification removed.
 
     Parameters
@@ -392,6 +392,9 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
         Isoline spacing; default a round step giving ~12 lines. Every fifth is bold.
     long_px : int
         Longest side of the picture.
+    removed_count : int, optional
+        How many peaks were removed in all, when ``removed_peaks`` lists only the
+        most prominent ones.
 
     Returns
     -------
@@ -413,8 +416,10 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
                     np.float64)
     shade = _hillshade(zb, pixel_mm * cols / W)
     rgb = colormap(zb, zmin, zmax, "height") * (0.45 + 0.65 * shade[..., None])
-    alpha = Image.fromarray((valid * 255).astype(np.uint8)).resize((W, H), Image.BILINEAR)
-    a = np.asarray(alpha, np.float64)[..., None] / 255.0
+    # The footprint's edge is the 0.5 level of the bilinearly enlarged mask, with a
+    # 1 px ramp: smooth diagonals instead of sample-sized stair steps.
+    mask = Image.fromarray(valid.astype(np.float32), "F").resize((W, H), Image.BILINEAR)
+    a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)[..., None]
     canvas = np.clip(rgb, 0, 255) * a + _WHITE * (1 - a)
 
     step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
@@ -447,10 +452,12 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     _, yb = colorbar(fig, lx, ly, 26, min(300, max(180, H // 2)), "height", zmin, zmax,
                      "height (mm)", fs=fs)
     y = swatch(fig, lx, yb + fs, (70, 52, 40), f"isolines every {fmt_number(step)} mm", fs)
-    if peaks:
-        y = swatch(fig, lx, y, PEAK_COLOR,
-                   f"{len(peaks)} peaks simplified", fs, shape="ring")
-        _stat_lines(fig, lx, y, [f"prominence <= {prom.max():.1f} mm", "(not reproduced)"], fs)
+    total = max(int(removed_count or 0), len(peaks))
+    if total:
+        shown = "" if total == len(peaks) else f" ({len(peaks)} shown)"
+        y = swatch(fig, lx, y, PEAK_COLOR, f"{total} peaks simplified{shown}", fs, shape="ring")
+        lines = [f"prominence <= {prom.max():.1f} mm"] if peaks else []
+        _stat_lines(fig, lx, y, lines + ["(not reproduced)"], fs)
     scale_bar(fig, bxy[0], fy + fs, plan_s, min(0.4 * W, 300), fs)
     fig.info["px_per_mm"] = plan_s
     fig.info["origin_px"] = (bxy[0] + 0.5 * f, bxy[1] + (rows - 0.5) * f)
