@@ -170,9 +170,9 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
 
     if faces is not None and len(faces):
         fid = rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w))
-        fs = _face_sigma(len(xy), faces, edges, sigma)
+        face_sigma = _face_sigma(len(xy), faces, edges, sigma)
         # Faces are a few px across, so a flat tint per face reads as a smooth field.
-        tint = 0.28 * colormap(fs, s_min, s_max, "shrink") + 0.72 * 246.0
+        tint = 0.28 * colormap(face_sigma, s_min, s_max, "shrink") + 0.72 * 246.0
         hit = fid >= 0
         canvas[hit] = tint[fid[hit]]
         b = _boundary_edges(faces)
