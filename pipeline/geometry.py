@@ -57,10 +57,13 @@ def unique_edges(faces):
     -------
     edges : (e, 2) int, sorted pairs, lexicographically sorted rows
     """
-    faces = np.asarray(faces)
+    faces = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     e.sort(axis=1)
-    return np.unique(e, axis=0)
+    n = int(faces.max(initial=0)) + 1
+    # One int64 key per edge: a 1-D unique is far faster than unique(axis=0).
+    key = np.unique(e[:, 0] * n + e[:, 1])
+    return np.stack([key // n, key % n], axis=1)
 
 
 def edge_lengths(points, edges):

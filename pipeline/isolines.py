@@ -45,6 +45,7 @@ class Piece:
         p = self.points
         if self.closed:
             p = np.vstack([p, p[:1]])
+        self._path = p
         seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
         self.cum = np.concatenate([[0.0], np.cumsum(seg)])
 
@@ -54,7 +55,7 @@ class Piece:
 
     def at(self, t):
         """Points at arc-length parameters ``t`` ((q,) float): (q, 2)."""
-        p = self.points if not self.closed else np.vstack([self.points, self.points[:1]])
+        p = self._path
         t = np.asarray(t, dtype=float)
         if self.closed:
             t = np.mod(t, self.length)
@@ -135,6 +136,17 @@ class GuideField:
         x, y = self.axes()
         gen = contourpy.contour_generator(x=x, y=y, z=grid[::-1], line_type="Separate")
         return gen.lines(level)
+
+
+def points_at(pieces, pids, ts):
+    """Points on several pieces: ``pieces[pids[i]].at(ts[i])`` for all i, (q, 2)."""
+    pids = np.asarray(pids, dtype=np.int64)
+    ts = np.asarray(ts, dtype=float)
+    out = np.zeros((len(pids), 2))
+    for pid in np.unique(pids):
+        sel = pids == pid
+        out[sel] = pieces[pid].at(ts[sel])
+    return out
 
 
 def footprint_outline(field, spacing_mm):

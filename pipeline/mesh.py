@@ -22,7 +22,7 @@ import shapely
 from pipeline.errors import MeshingError
 from pipeline.geometry import Mesh, signed_areas_2d, unique_edges
 from pipeline.gradient import Snapper, trace
-from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces
+from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces, points_at
 from pipeline.triangulate import ear_clip, fan, zip_strips
 
 
@@ -143,9 +143,11 @@ class _Graph:
         li_of = self.level_index
         by_level = [np.nonzero(li_of == li)[0] for li in range(len(self.levels))]
         snappers = [Snapper(self.pieces, ids) for ids in by_level]
-        rings = [np.vstack([p.points, p.points[:1]]) if p.closed else p.points for p in self.pieces]
-        self._piece_tree = shapely.STRtree([shapely.LineString(r) for r in rings])
-        self._bridge_lines = []
+        # Short segments, not whole loops: a loop's box covers everything inside it.
+        segs = np.concatenate([np.stack([p._path[:-1], p._path[1:]], axis=1)
+                               for p in self.pieces])
+        self._piece_tree = shapely.STRtree(shapely.linestrings(segs))
+        self._bridge_lines = {}   # band (lower level index, or -1 for the outline) -> lines
         tol = 1.5 * self.field.pixel_mm
         if not self.level_outline:
             self._trace_from_sloped_outline(snappers, tol)
@@ -155,7 +157,7 @@ class _Graph:
                 for t in self._seeds(pid):
                     src.append(pid)
                     t_src.append(t)
-            self._connect(src, t_src, self.levels[li + 1], snappers[li + 1], tol)
+            self._connect(src, t_src, self.levels[li + 1], snappers[li + 1], tol, li)
             # Isolines no line reached (a new peak past a saddle): trace down from them.
             orphans = [pid for pid in by_level[li + 1] if not self.piece_t[pid]]
             src, t_src = [], []
@@ -163,45 +165,50 @@ class _Graph:
                 for t in self._seeds(pid):
                     src.append(pid)
                     t_src.append(t)
-            self._connect(src, t_src, self.levels[li], snappers[li], tol)
+            self._connect(src, t_src, self.levels[li], snappers[li], tol, li)
             for pid in orphans:
                 if not self.piece_t[pid]:
-                    self._straight_connector(pid, snappers[li])
+                    self._straight_connector(pid, snappers[li], li)
 
-    def _connect(self, src, t_src, level, snapper, tol):
+    def _connect(self, src, t_src, level, snapper, tol, band):
         if not src:
             return
         src = np.asarray(src)
         t_src = np.asarray(t_src, float)
-        xy0 = np.stack([self.pieces[p].at([t])[0] for p, t in zip(src, t_src)])
+        xy0 = points_at(self.pieces, src, t_src)
         xy1, ok = trace(self.field, xy0, level)
         pid1, t1, dist = snapper.snap(xy1)
         ok &= (pid1 >= 0) & (dist < tol)
         src, t_src, pid1, t1, xy0 = src[ok], t_src[ok], pid1[ok], t1[ok], xy0[ok]
         keep = self._non_crossing(src, t_src, pid1, t1)
         src, t_src, pid1, t1, xy0 = src[keep], t_src[keep], pid1[keep], t1[keep], xy0[keep]
-        xy1 = np.stack([self.pieces[p].at([t])[0] for p, t in zip(pid1, t1)]) if len(pid1) \
-            else np.zeros((0, 2))
-        keep = self._planar(xy0, xy1)
+        xy1 = points_at(self.pieces, pid1, t1)
+        keep = self._planar(xy0, xy1, band)
         for a, ta, b, tb in zip(src[keep], t_src[keep], pid1[keep], t1[keep]):
             na = self.add_node(int(a), float(ta))
             nb = self.add_node(int(b), float(tb))
             if na != nb:
-                self.bridges.append((na, nb))
-                self._bridge_lines.append(
-                    _shrunk(np.asarray(self.node_xy[na]), np.asarray(self.node_xy[nb])))
+                self._add_bridge(na, nb, band)
 
-    def _planar(self, xy0, xy1):
+    def _add_bridge(self, na, nb, band):
+        self.bridges.append((na, nb))
+        self._bridge_lines.setdefault(band, []).append(
+            _shrunk(np.asarray(self.node_xy[na]), np.asarray(self.node_xy[nb])))
+
+    def _planar(self, xy0, xy1, band):
         """Keep the straight bridges that cross no isoline, no earlier bridge and no
         shorter bridge of this batch: the graph must stay planar for its cells."""
         if len(xy0) == 0:
             return np.zeros(0, bool)
-        lines = np.array([_shrunk(a, b) for a, b in zip(xy0, xy1)], dtype=object)
+        lines = _shrunk_many(xy0, xy1)
         ok = np.ones(len(lines), bool)
         hit, _ = self._piece_tree.query(lines, predicate="intersects")
         ok[hit] = False
-        if self._bridge_lines:
-            hit, _ = shapely.STRtree(self._bridge_lines).query(lines, predicate="intersects")
+        # A band's bridges can only meet bridges of the same band or from the outline.
+        near = self._bridge_lines.get(band, []) + \
+            (self._bridge_lines.get(-1, []) if band != -1 else [])
+        if near:
+            hit, _ = shapely.STRtree(near).query(lines, predicate="intersects")
             ok[hit] = False
         cand = np.nonzero(ok)[0]
         if len(cand) > 1:
@@ -250,18 +257,16 @@ class _Graph:
         li = np.searchsorted(self.levels, g + 0.1 * self.dh)
         for k in np.unique(li[li < len(self.levels)]):
             sel = np.nonzero(li == k)[0]
-            self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol)
+            self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol, -1)
 
-    def _straight_connector(self, pid, snapper):
+    def _straight_connector(self, pid, snapper, band):
         pc = self.pieces[pid]
         pb, tb, _ = snapper.snap(pc.points[:1])
         if pb[0] < 0:
             pb, tb, _ = self._outline_snap.snap(pc.points[:1])
         na = self.add_node(pid, 0.0)
         nb = self.add_node(int(pb[0]), float(tb[0]))
-        self.bridges.append((na, nb))
-        self._bridge_lines.append(_shrunk(np.asarray(self.node_xy[na]),
-                                          np.asarray(self.node_xy[nb])))
+        self._add_bridge(na, nb, band)
         self.connectors += 1
 
     # -- triangulation -----------------------------------------------------
@@ -353,6 +358,14 @@ class _Graph:
                           {"peaks": int(peaks), "saddles": int(saddles),
                            "connectors": int(self.connectors),
                            "level_outline": self.level_outline})
+
+
+def _shrunk_many(a, b, eps_mm=1e-4):
+    """Vectorised :func:`_shrunk` over (q, 2) end points: (q,) LineStrings."""
+    d = b - a
+    n = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+    e = np.minimum(eps_mm / n, 0.25)[:, None]
+    return shapely.linestrings(np.stack([a + e * d, b - e * d], axis=1))
 
 
 def _shrunk(a, b, eps_mm=1e-4):
