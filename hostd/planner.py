@@ -1,26 +1,32 @@
 """Run the pipeline on one file and write its outputs (used by `hostd plan` and the daemon).
 
 Outputs for input ``NAME.*`` (all published together, see ``hostd.outputs``):
-``NAME.report.json``, ``NAME.flat.ply``, ``NAME.simulated.ply``,
-``NAME.stress.png``, ``NAME.preview.png``, ``NAME.input.png``. On a pipeline error only
-``NAME.error.json`` is written.
+``NAME.report.json``, ``NAME.gcode``, ``NAME.flat.ply``, ``NAME.simulated.ply``,
+``NAME.stress.png``, ``NAME.preview.png``, ``NAME.toolpath.png``, ``NAME.input.png``,
+and with colour ``NAME.texture.png`` and ``NAME.outline.svg``. On a pipeline error
+only ``NAME.error.json`` is written.
 """
 
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from hostd.outputs import Staging, atomic_write, json_text
-from pipeline import figure, plyio, render
+from pipeline import figure, gcode, plyio, render, texture
 from pipeline.errors import PipelineError
 from pipeline.plan import plan_file
 
+TEXTURE_DPI = 300
 
-def output_names(name):
-    return {k: "%s.%s" % (name, k) for k in
-            ("report.json", "flat.ply", "simulated.ply", "stress.png", "preview.png",
-             "input.png")}
+
+def output_names(name, color=False):
+    kinds = ["report.json", "gcode", "flat.ply", "simulated.ply", "stress.png", "preview.png",
+             "toolpath.png", "input.png"]
+    if color:
+        kinds += ["texture.png", "outline.svg"]
+    return {k: "%s.%s" % (name, k) for k in kinds}
 
 
 def run(input_path, profile, outdir, progress=None):
@@ -53,9 +59,35 @@ def run(input_path, profile, outdir, progress=None):
 
 
 def write_outputs(st, plan):
-    """Render and write every file of ``plan`` into the staging area ``st``."""
+    """Render and write every file of ``plan`` into the staging area ``st``.
+
+    Adds the report's ``gcode`` section and the ``gcode``/``texture`` timings.
+    """
     name, mesh, flat, sim, prof = plan.name, plan.mesh, plan.flat, plan.sim, plan.profile
     lim = prof.shrink_limits
+    timing = plan.report["timing_s"]
+    tp = plan.toolpaths
+    t = time.perf_counter()
+    stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(name + ".gcode"), name=name,
+                              center=False)
+    timing["gcode"] = round(time.perf_counter() - t, 4)
+    plan.report["gcode"] = _gcode_report(stats)
+    t = time.perf_counter()
+    if plan.hf.color is not None:
+        colors = texture.vertex_colors(plan.hf, mesh.vertices)
+        image, info = texture.texture_image(mesh.vertices, mesh.faces, plan.xy_bed, colors,
+                                            dpi=TEXTURE_DPI)
+        texture.save_texture(image, st.path(name + ".texture.png"), dpi=TEXTURE_DPI)
+        st.write(name + ".outline.svg", texture.outline_svg(
+            plan.xy_bed, mesh.faces, info["marks"], info["margin_mm"], dpi=TEXTURE_DPI))
+        plan.report["texture"] = {"dpi": TEXTURE_DPI, "size_px": list(info["size_px"]),
+                                  "opacity": info["opacity"], "marks": info["marks"]}
+    timing["texture"] = round(time.perf_counter() - t, 4)
+    travel = [(a[-1], b[0]) for a, b in zip(tp.traces[:-1], tp.traces[1:])]
+    st.write_image(name + ".toolpath.png", render.toolpath_image(
+        tp.traces, tp.sigma, lim.s_min, lim.s_max, prof.path_width_mm,
+        travel=np.array(travel) if travel else None,
+        title="%s: tool paths, shrink per segment" % name))
     flat3 = np.column_stack([flat.xy, np.zeros(len(flat.xy))])
     plyio.write_ply(st.path(name + ".flat.ply"), flat3, mesh.faces)
     disp = sim.displacement_mm
@@ -71,7 +103,16 @@ def write_outputs(st, plan):
         mesh.vertices, mesh.faces, sim.vertices, disp,
         title="%s (%.0f mm): target vs. simulated after shrinking" % (name, diameter)))
     removed = plan.simplified.get("removed_peaks", [])
+    count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(name + ".input.png", render.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
-        title="%s: input as meshed (%d small peaks removed)" % (name, len(removed)),
-        isoline_step_mm=prof.mesh.isoline_step_mm))
+        title="%s: input as meshed (%d small peaks removed)" % (name, count),
+        isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+
+
+def _gcode_report(stats):
+    keys = ("lines", "bytes", "layers", "thickness_mm", "clamped_segments", "filament_mm",
+            "estimated_print_s", "bed_fits")
+    out = {k: stats[k] for k in keys}
+    out.update({k: v for k, v in stats.items() if k not in out})
+    return json.loads(json.dumps(out, default=float))

@@ -312,7 +312,7 @@ class _Graph:
         field = self.field
         z = field.height(xy)
         points3 = np.column_stack([xy, z])
-        lowers, uppers, extra_tris = [], [], []
+        lowers, uppers, zip_rings, extra_tris = [], [], [], []
         centres = []
         peaks = saddles = 0
         for cycle in faces_he:
@@ -326,12 +326,14 @@ class _Graph:
                 lower, upper = _split_ring(cycle, he, up)
                 lowers.append(lower)
                 uppers.append(upper)
+                zip_rings.append(ring)
                 continue
             if len(runs) == 1 and len(runs[0]) < len(cycle):
                 lower, upper = _split_ring(cycle, he, runs[0], swap=True)
                 if len(upper) == 1:
                     lowers.append(lower)
                     uppers.append(upper)
+                    zip_rings.append(ring)
                     continue
             cap = len(runs) == 1 and len(runs[0]) == len(cycle)
             peaks += cap
@@ -349,7 +351,13 @@ class _Graph:
             xy = np.vstack([xy, c])
             points3 = np.vstack([points3, np.column_stack([c, field.height(c)])])
             level = np.concatenate([level, field.value(c)])
-        faces = np.concatenate([zip_strips(points3, lowers, uppers)] + extra_tris)
+        zipped, strip = zip_strips(points3, lowers, uppers)
+        # A strip that folds (a strongly bent cell) is ear-clipped instead.
+        folded = np.unique(strip[signed_areas_2d(xy, zipped) <= 0])
+        if len(folded):
+            zipped = zipped[~np.isin(strip, folded)]
+            extra_tris.extend(ear_clip(xy, zip_rings[k]) for k in folded)
+        faces = np.concatenate([zipped] + extra_tris)
         faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
                       & (faces[:, 0] != faces[:, 2])]
         nan = np.isnan(level)

@@ -1,7 +1,7 @@
 """The flatten-and-plan pipeline, stage by stage, with timing and the report.
 
 ``plan_file`` runs: load -> validate (fill pits) -> simplify (terrain
-topology) -> mesh -> flatten -> simulate, and returns a :class:`Plan` holding
+topology) -> mesh -> flatten -> simulate -> tool paths, and returns a :class:`Plan` holding
 every intermediate result and the ``report`` dict whose keys other tools read
 (see the README; add keys freely, never rename).
 """
@@ -19,6 +19,7 @@ from pipeline.flatten import flatten
 from pipeline.mesh import build_mesh
 from pipeline.simplify import simplify
 from pipeline.simulate import simulate
+from pipeline.toolpath import plan_toolpaths
 from pipeline.validate import validate
 
 
@@ -34,11 +35,13 @@ class Plan:
     mesh: object = None
     flat: object = None
     sim: object = None
+    xy_bed: object = None
+    toolpaths: object = None
     simplified: dict = field(default_factory=dict)
     report: dict = field(default_factory=dict)
 
 
-STAGES = ("load", "validate", "mesh", "flatten", "simulate")
+STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
 
 
 def plan_file(path, profile, progress=None):
@@ -112,9 +115,30 @@ def plan_file(path, profile, progress=None):
                                         ("bridge", "printing", "bending", "shear")})
     result.sim = sim
     timing["simulate"] = time.perf_counter() - t
+
+    t = stage("toolpath", "paths %.3g mm wide" % profile.path_width_mm)
+    # Bed coordinates: the layout's bounding box centred on the bed, so the tool
+    # paths, the G-code and the screen-print marks all share one frame.
+    lo, hi = flat.xy.min(axis=0), flat.xy.max(axis=0)
+    result.xy_bed = flat.xy - (lo + hi) / 2.0 + np.asarray(profile.bed_mm, float) / 2.0
+    tp = profile.toolpath
+    result.toolpaths = plan_toolpaths(
+        result.xy_bed, mesh.faces, mesh.vertex_level, mesh.printing_edges, flat.sigma,
+        profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg, merge_sigma=tp.merge_sigma)
+    timing["toolpath"] = time.perf_counter() - t
     timing["total"] = time.perf_counter() - t_all
     result.report = _report(path, profile, result, vrep, srep, timing)
     return result
+
+
+def _json_ready(d):
+    if isinstance(d, dict):
+        return {k: _json_ready(v) for k, v in d.items()}
+    if isinstance(d, (np.floating, float)):
+        return float(d)
+    if isinstance(d, (np.integer, int)) and not isinstance(d, bool):
+        return int(d)
+    return d
 
 
 def _report(path, profile, p, vrep, srep, timing):
@@ -150,6 +174,9 @@ def _report(path, profile, p, vrep, srep, timing):
         },
         "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])]),
         "simulation": {"mean_displacement_mm": float(sim.mean_displacement_mm),
-                       "max_displacement_mm": float(sim.max_displacement_mm)},
+                       "max_displacement_mm": float(sim.max_displacement_mm),
+                       "mean_displacement_fraction": float(
+                           sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9))},
+        "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
     }

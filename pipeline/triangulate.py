@@ -24,9 +24,10 @@ def zip_strips(points, lowers, uppers):
     Returns
     -------
     faces : (m, 3) int, counter-clockwise when the cells are.
+    strip : (m,) int, the strip each face belongs to.
     """
     if not lowers:
-        return np.zeros((0, 3), dtype=np.int64)
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
     nl = np.array([len(a) for a in lowers])
     nu = np.array([len(a) for a in uppers])
     L = _pad(lowers, nl.max())
@@ -34,6 +35,7 @@ def zip_strips(points, lowers, uppers):
     i = np.zeros(len(nl), dtype=np.int64)
     j = np.zeros(len(nu), dtype=np.int64)
     out = []
+    owner = []
     active = np.nonzero((nl > 1) | (nu > 1))[0]
     while len(active):
         ia, ja = i[active], j[active]
@@ -52,10 +54,14 @@ def zip_strips(points, lowers, uppers):
         take_u = can_u & ~take_l
         out.append(np.stack([li, l_next, lj], axis=1)[take_l])
         out.append(np.stack([li, u_next, lj], axis=1)[take_u])
+        owner.append(active[take_l])
+        owner.append(active[take_u])
         i[active] += take_l
         j[active] += take_u
         active = active[(i[active] < nl[active] - 1) | (j[active] < nu[active] - 1)]
-    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+    if not out:
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    return np.concatenate(out), np.concatenate(owner)
 
 
 def _pad(chains, width):

@@ -104,7 +104,7 @@ def test_zip_makes_counter_clockwise_strip_triangles():
     pts[:5, 0] = np.linspace(0, 4, 5)
     pts[5:, 0] = np.linspace(0, 4, 7)
     pts[5:, 1] = 1.0
-    faces = zip_strips(pts, [lower], [upper])
+    faces, _ = zip_strips(pts, [lower], [upper])
     assert len(faces) == len(lower) + len(upper) - 2
     assert (signed_areas_2d(pts, faces) > 0).all()
     assert face_areas(pts, faces).sum() == pytest.approx(4.0)
