@@ -9,11 +9,14 @@ in-plane PD iterations make the layout satisfy the constraints in the plane.
 
 Relocations, made dimensionally sound (all displacements in mm):
 
-- flattening: ``dz = -w_flattening * z``. The paper writes
-  ``-z / (z_max sqrt(lx ly))``, which has units 1/mm; a fixed fraction of the
-  height keeps its intent (the push shrinks as the sheet gets flat, and never
-  overshoots the plane since w_flattening <= 1) without depending on the
-  model's size.
+- flattening: ``dz = -r_k * z``, a fraction of each vertex's height, so the
+  push shrinks as the sheet gets flat and never overshoots the plane. The
+  paper's ``-z / (z_max sqrt(lx ly))`` has units 1/mm; we keep its intent
+  without a size dependence. ``r_k`` ramps the height linearly to zero over
+  80 % of the iterations, capped at ``w_flattening`` per step (see
+  :func:`flattening_rate`): the paper's constant 0.3 from the first step
+  crushes summits on fine meshes (measured on the elongated peak at
+  l_u = 0.5 mm: 15 % invalid edges against 2.4 % with the ramp).
 - stretching: boundary vertices move by ``w_stretching * mean(|e0|, |e1|) *
   N_xy`` (two incident boundary edges; N the area-weighted mean unit normal).
 - spreading: for every interior edge and each of its faces f, the vertex of f
@@ -28,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import edge_index, edge_lengths, signed_areas_2d
-from pipeline.pd import EdgeTargets, PDSystem, topology
+from pipeline.pd import EdgeTargets, PDSystem, minimize, topology
 
 DEFAULT_WEIGHTS = {"bridge": 1.0, "printing": 1.0, "bending": 0.025, "shear": 0.25,
                    "flattening": 0.3, "stretching": 1.0, "spreading": 0.5}
@@ -103,7 +106,7 @@ class FlatResult:
 
 
 def flatten(mesh, s_min=0.0, s_max=0.343, iterations=50, weights=None, tol=1e-4,
-            planar_iterations=10, callback=None):
+            planar_iterations=50, planar_tol=1e-5, anderson=5, callback=None):
     """Flatten ``mesh`` (a :class:`pipeline.geometry.Mesh`, mm) into the plane.
 
     Parameters
@@ -121,7 +124,12 @@ def flatten(mesh, s_min=0.0, s_max=0.343, iterations=50, weights=None, tol=1e-4,
         Stop when the largest vertex move of an iteration falls below
         ``tol`` times the mean target edge length.
     planar_iterations : int
-        In-plane PD iterations after setting z = 0.
+        Maximum in-plane PD iterations after setting z = 0.
+    planar_tol : float
+        The in-plane phase stops when no vertex moves more than this times
+        the mean target edge length.
+    anderson : int
+        Anderson acceleration window of the in-plane phase (0: plain PD).
     callback : callable(iteration, positions), optional
         Called after every iteration with the (n, 3) (then (n, 2)) positions.
 
@@ -157,7 +165,7 @@ def flatten(mesh, s_min=0.0, s_max=0.343, iterations=50, weights=None, tol=1e-4,
     for it in range(1, iterations + 1):
         X_new, E = system.step(X)
         energy.append(E)
-        X_new = reloc.apply(X_new)
+        X_new = reloc.apply(X_new, rate=flattening_rate(it, iterations, w["flattening"]))
         change = float(np.abs(X_new - X).max()) / scale
         X = X_new
         if callback is not None:
@@ -169,11 +177,10 @@ def flatten(mesh, s_min=0.0, s_max=0.343, iterations=50, weights=None, tol=1e-4,
     t2 = time.perf_counter()
 
     Y = np.ascontiguousarray(X[:2])
-    for k in range(planar_iterations):
-        Y, E = system.step(Y, planar=True)
-        energy.append(E)
-        if callback is not None:
-            callback(it + k + 1, Y.T)
+    if planar_iterations:
+        Y, e_planar, _, _ = minimize(system, Y, planar_iterations, planar_tol * scale, planar=True,
+                                     anderson=anderson, callback=callback, start=it)
+        energy += e_planar
     Y = Y.T - Y.mean(axis=1)
     t3 = time.perf_counter()
 
@@ -184,6 +191,20 @@ def flatten(mesh, s_min=0.0, s_max=0.343, iterations=50, weights=None, tol=1e-4,
                       timing_s={"setup": t1 - t0, "iterate": t2 - t1, "planar": t3 - t2,
                                 "total": time.perf_counter() - t0},
                       **res)
+
+
+def flattening_rate(k, iterations, w_flattening, ramp=0.8):
+    """Fraction of its height each vertex loses in iteration ``k`` (1-based).
+
+    A linear ramp: the height would reach zero at ``ramp * iterations``
+    (each step removes 1/(steps left) of it), capped at ``w_flattening`` per
+    step, which then keeps pressing at that rate. The paper's fixed 0.3 from
+    the first step presses a curved sheet flat before the constraints can
+    spread it (summits crush and flip on fine meshes); the ramp moves at
+    constant speed instead, and 20 % of the budget is left to settle flat.
+    """
+    steps_left = max(int(np.ceil(ramp * iterations)) - k + 1, 1)
+    return min(float(w_flattening), 1.0 / steps_left)
 
 
 def _printing_mask(edges, printing_edges):
@@ -221,12 +242,17 @@ class Relocator:
         self.bnd_ends = be.ravel()
         self.bnd_count = np.maximum(np.bincount(self.bnd_ends, minlength=n), 1)
 
-    def apply(self, X):
-        """Relocated copy of ``X`` ((3, n) mm, component-major)."""
+    def apply(self, X, rate=None):
+        """Relocated copy of ``X`` ((3, n) mm, component-major).
+
+        ``rate`` overrides the flattening fraction of this iteration.
+        """
         top, n, faces = self.top, self.top.n, self.top.faces
+        rate = self.wf if rate is None else rate
         Y = X.copy()
-        Y[2] -= self.wf * X[2]
-        if self.wst == 0 and self.wsp == 0:
+        Y[2] -= rate * X[2]
+        wst, wsp = self.wst, self.wsp
+        if wst == 0 and wsp == 0:
             return Y
         x, y, z = X
         f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
@@ -238,7 +264,7 @@ class Relocator:
         e = top.edges
         dx, dy, dz = x[e[:, 1]] - x[e[:, 0]], y[e[:, 1]] - y[e[:, 0]], z[e[:, 1]] - z[e[:, 0]]
         el = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if self.wst:
+        if wst:
             # Area-weighted mean of unit normals = sum(2A n) / sum(2A).
             cv = self.corner_v
             vnx = np.bincount(cv, np.repeat(nx, 3), n)
@@ -246,16 +272,16 @@ class Relocator:
             va = np.bincount(cv, np.repeat(a2, 3), n)
             bl = np.bincount(self.bnd_ends, np.repeat(el[top.boundary_edges], 2), n) / self.bnd_count
             v = self.bnd_v
-            k = self.wst * bl[v] / np.maximum(va[v], 1e-300)
+            k = wst * bl[v] / np.maximum(va[v], 1e-300)
             Y[0, v] += k * vnx[v]
             Y[1, v] += k * vny[v]
-        if self.wsp:
+        if wsp:
             inv = 1.0 / np.maximum(a2, 1e-300)
             fe = el[top.face_edge]  # (m, 3): length opposite each corner
             mean_len = 0.5 * (fe.sum(axis=1)[:, None] - fe)  # the two edges at each corner
             c = self.spread_corner
             f = c // 3
-            k = self.wsp * mean_len.ravel()[c] * inv[f]
+            k = wsp * mean_len.ravel()[c] * inv[f]
             v = self.corner_v[c]
             Y[0] += np.bincount(v, k * nx[f], n) / self.spread_count
             Y[1] += np.bincount(v, k * ny[f], n) / self.spread_count

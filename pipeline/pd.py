@@ -23,8 +23,10 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-# Areas below this (mm^2) are treated as degenerate when computing cotangents.
-_TINY_AREA = 1e-12
+# Rest triangles are kept at least this fat (area / sum of squared sides) so
+# that inconsistent rest lengths (a bridge strained past the triangle
+# inequality) give bounded cotangents instead of an ill-conditioned system.
+_MIN_FATNESS = 1e-4
 
 
 @dataclass
@@ -119,7 +121,8 @@ def face_geometry(top, edge_len):
 
     Returns
     -------
-    area : (m,) float, mm^2 (Heron; clamped to a tiny positive value)
+    area : (m,) float, mm^2 (Heron; kept above a small fraction of the
+        squared sides, see ``_MIN_FATNESS``)
     cot : (m, 3) float, cotangent of the angle at each corner
     angle : (m, 3) float, rad, angle at each corner
     """
@@ -127,7 +130,7 @@ def face_geometry(top, edge_len):
     a, b, c = np.sqrt(l2[:, 0]), np.sqrt(l2[:, 1]), np.sqrt(l2[:, 2])
     prod = (a + b + c) * (-a + b + c) * (a - b + c) * (a + b - c)
     area = 0.25 * np.sqrt(np.maximum(prod, 0.0))
-    area = np.maximum(area, _TINY_AREA)
+    area = np.maximum(area, _MIN_FATNESS * l2.sum(axis=1) + 1e-300)
     # Law of cosines: at corner k, 2 |e1||e2| cos = l2[k+1] + l2[k+2] - l2[k].
     num = l2[:, [1, 2, 0]] + l2[:, [2, 0, 1]] - l2
     cot = num / (4.0 * area[:, None])
@@ -223,6 +226,9 @@ class PDSystem:
         self.edge_w = np.asarray(edge.weight, dtype=float)
         # Shear rows: corner k has U0 = s_k h_k and U1 = -s_{k+2} h_{k+2}, s = 1/sqrt(rest length).
         self.he_scale = 1.0 / np.sqrt(rest_len[he_edge])
+        corner = np.arange(3 * m).reshape(m, 3)
+        self._next = corner[:, [1, 2, 0]].ravel()  # half-edge j+1 of the same face
+        self.he_scale_next2 = self.he_scale[corner[:, [2, 0, 1]].ravel()]
         self.w_shear = float(w_shear)
         _, _, angle = face_geometry(top, rest_len)
         self.theta0 = angle.ravel()
@@ -266,19 +272,38 @@ class PDSystem:
         ``planar`` measures corner angles signed about +z so that flipped
         triangles in the plane are pushed back instead of ignored.
         """
+        d, m = len(Xc), len(self.top.faces)
         H = self.half_edges(Xc)
-        d = len(Xc)
-        Ye = H[:, self.edge_he] * self.edge_coef
+        Ye = H[:, self.edge_he]
+        Ye *= self.edge_coef
         Pe, re2 = project_edges(Ye, self.edge_lo, self.edge_hi, return_residual=True)
-        Hs = H * self.he_scale
-        m = len(self.top.faces)
-        U1 = -Hs.reshape(d, m, 3)[:, :, [2, 0, 1]].reshape(d, -1)
-        P0, P1, rc2 = project_corners(Hs, U1, self.cos0, self.sin0, planar, return_residual=True)
-        # Q_j = w s_j (P0_j - P1_{j+1}): half-edge j is U0 of corner j and -U1 of corner j+1.
-        P1 = P1.reshape(d, m, 3)[:, :, [1, 2, 0]].reshape(d, -1)
-        P0 -= P1
-        Q = P0
-        Q *= self.w_shear * self.he_scale
+        # Corner k of a face: U0 = s_k h_k, U1 = -s_{k+2} h_{k+2}. Work on scalars
+        # per corner and the two half-edge arrays H and Hn (= h_{k+2}) only.
+        Hn = H.reshape(d, m, 3)[:, :, [2, 0, 1]].reshape(d, -1)
+        s0 = self.he_scale
+        s1 = self.he_scale_next2
+        hh = np.einsum("ij,ij->j", H, H)
+        L0 = hh * s0 * s0
+        L1 = hh.reshape(m, 3)[:, [2, 0, 1]].ravel() * (s1 * s1)
+        dot = np.einsum("ij,ij->j", H, Hn)
+        dot *= -s0 * s1
+        if planar:
+            sn = (H[0] * Hn[1] - H[1] * Hn[0]) * (-s0 * s1)
+        else:
+            sn = None
+        a00, a01, a10, a11, rc2 = corner_coefficients(L0, L1, dot, sn, self.cos0, self.sin0)
+        # Half-edge j is U0 of corner j and -U1 of corner j+1; with
+        # h_{j+1} = -h_j - h_{j+2} (a triangle closes) the weighted sum is
+        # Q_j = w s_j [(a00_j s_j + a11_{j+1} s_j + a10_{j+1} s_{j+1}) h_j
+        #              + (a10_{j+1} s_{j+1} - a01_j s_{j+2}) h_{j+2}].
+        nxt = self._next
+        a10n = a10[nxt] * s0[nxt]
+        alpha = (a00 * s0 + a11[nxt] * s0 + a10n) * (self.w_shear * s0)
+        beta = (a10n - a01 * s1) * (self.w_shear * s0)
+        Q = H
+        Q *= alpha
+        Hn *= beta
+        Q += Hn
         Q[:, self.edge_he] += Pe * (self.edge_w * self.edge_coef)
         bend = sum(float(np.dot(v, v)) for v in (self.B @ x for x in Xc))
         E = 0.5 * (float(self.edge_w @ re2) + self.w_shear * float(rc2.sum())
@@ -290,17 +315,19 @@ class PDSystem:
         return self.project(Xc, planar)[1]
 
     def energy_terms(self, Xc, planar=False):
-        """Energy per constraint kind: dict edge/shear/bending (for diagnostics)."""
-        H = self.half_edges(Xc)
-        d, m = len(Xc), len(self.top.faces)
-        Ye = H[:, self.edge_he] * self.edge_coef
-        _, re2 = project_edges(Ye, self.edge_lo, self.edge_hi, return_residual=True)
-        Hs = H * self.he_scale
-        U1 = -Hs.reshape(d, m, 3)[:, :, [2, 0, 1]].reshape(d, -1)
-        rc2 = project_corners(Hs, U1, self.cos0, self.sin0, planar, return_residual=True)[2]
+        """Energy per constraint kind: dict edge/shear/bending (for diagnostics).
+
+        Evaluated through the explicit rows :attr:`A` and the vector
+        projections, independently of the fused :meth:`project`.
+        """
+        Y = np.stack([self.A @ x for x in Xc])
+        e, c = self.n_edges, self.n_corners
+        _, re2 = project_edges(Y[:, :e], self.edge_lo, self.edge_hi, return_residual=True)
+        P0, P1 = project_corners(Y[:, e:e + c], Y[:, e + c:], self.cos0, self.sin0, planar)
+        rc = np.concatenate([Y[:, e:e + c] - P0, Y[:, e + c:] - P1], axis=1)
         bend = sum(float(np.dot(v, v)) for v in (self.B @ x for x in Xc))
         return {"edge": 0.5 * float(self.edge_w @ re2),
-                "shear": 0.5 * self.w_shear * float(rc2.sum()),
+                "shear": 0.5 * self.w_shear * float(np.einsum("ij,ij->", rc, rc)),
                 "bending": 0.5 * self.w_bending * bend}
 
     def solve(self, Q, Xc):
@@ -360,47 +387,133 @@ def project_corners(U0, U1, cos0, sin0, planar=False, return_residual=False):
     dot = np.einsum("ij,ij->j", U0, U1)
     L0 = np.einsum("ij,ij->j", U0, U0)
     L1 = np.einsum("ij,ij->j", U1, U1)
-    if planar:
-        sn = U0[0] * U1[1] - U0[1] * U1[0]
-    else:
+    sn = U0[0] * U1[1] - U0[1] * U1[0] if planar else None
+    a00, a01, a10, a11, r2 = corner_coefficients(L0, L1, dot, sn, cos0, sin0)
+    P0 = a00 * U0
+    P0 += a01 * U1
+    P1 = a11 * U1
+    P1 += a10 * U0
+    if return_residual:
+        return P0, P1, r2
+    return P0, P1
+
+
+def corner_coefficients(L0, L1, dot, sn, cos0, sin0):
+    """Scalar core of :func:`project_corners`.
+
+    From |U0|^2, |U1|^2, U0.U1 and the signed sine term ``sn`` (|U0 x U1|,
+    or its z component in the plane; None: unsigned, computed here) returns
+    the coefficients with P0 = a00 U0 + a01 U1 and P1 = a10 U0 + a11 U1,
+    and the residual |U0 - P0|^2 + |U1 - P1|^2, all (k,).
+    """
+    if sn is None:
         sn = np.sqrt(np.maximum(L0 * L1 - dot * dot, 0.0))
     r = np.sqrt(L0 * L1)
     ok = np.abs(sn) > 1e-9 * r
-    r = np.where(ok, r, 1.0)
-    sn = np.where(ok, sn, 1.0)
+    if not ok.all():
+        r = np.where(ok, r, 1.0)
+        sn = np.where(ok, sn, 1.0)
+    inv_r = 1.0 / r
     # exp(i delta) = exp(i theta0) exp(-i theta)
-    cd = (cos0 * dot + sin0 * sn) / r
-    sd = (sin0 * dot - cos0 * sn) / r
+    cd = (cos0 * dot + sin0 * sn) * inv_r
+    sd = (sin0 * dot - cos0 * sn) * inv_r
     wr = L0 + L1 * (cd * cd - sd * sd)
     wi = L1 * 2.0 * cd * sd
     wn = np.sqrt(wr * wr + wi * wi)
-    wn = np.where(wn > 0, wn, 1.0)
-    c2 = wr / wn
-    ca0 = np.sqrt(np.maximum(0.5 * (1.0 + c2), 0.0))
+    wn[wn == 0] = 1.0
+    ca0 = np.sqrt(np.maximum(0.5 * (1.0 + wr / wn), 0.0))
     sa0 = 0.5 * (wi / wn) / np.where(ca0 > 0, ca0, 1.0)
     k0 = ca0.copy()
     far = cd < 0
-    if far.any():
+    any_far = bool(far.any())
+    if any_far:
         delta = np.arctan2(sd[far], cd[far])
         a0 = delta * L1[far] / np.maximum(L0[far] + L1[far], 1e-300)
         ca0[far], sa0[far], k0[far] = np.cos(a0), np.sin(a0), 1.0
     ca1 = cd * ca0 + sd * sa0
     sa1 = sd * ca0 - cd * sa0
-    k1 = np.where(far, 1.0, ca1)
-    # z x U0 = (L0 U1 - dot U0) / sn and z x U1 = (dot U1 - L1 U0) / sn in the corner's plane.
-    cot = dot / sn
+    k1 = np.where(far, 1.0, ca1) if any_far else ca1
+    # In the corner's plane, n x U0 = (L0 U1 - dot U0) / sn and n x U1 = (dot U1 - L1 U0) / sn.
+    inv_sn = 1.0 / sn
+    cot = dot * inv_sn
     a00 = k0 * (ca0 + sa0 * cot)
-    a01 = -k0 * sa0 * L0 / sn
+    a01 = -k0 * sa0 * L0 * inv_sn
     a11 = k1 * (ca1 + sa1 * cot)
-    a10 = -k1 * sa1 * L1 / sn
-    if not ok.all():
-        a00[~ok], a01[~ok], a11[~ok], a10[~ok] = 1.0, 0.0, 1.0, 0.0
-    P0 = a00 * U0
-    P0 += a01 * U1
-    P1 = a11 * U1
-    P1 += a10 * U0
-    if not return_residual:
-        return P0, P1
+    a10 = -k1 * sa1 * L1 * inv_sn
     # |U - P|^2 = L sin^2 a for the projection, 2 L (1 - cos a) for a pure rotation.
-    r2 = np.where(far, 2.0 * (L0 * (1.0 - ca0) + L1 * (1.0 - ca1)), L0 * sa0 * sa0 + L1 * sa1 * sa1)
-    return P0, P1, np.where(ok, r2, 0.0)
+    r2 = L0 * sa0 * sa0 + L1 * sa1 * sa1
+    if any_far:
+        r2[far] = 2.0 * (L0[far] * (1.0 - ca0[far]) + L1[far] * (1.0 - ca1[far]))
+    if not ok.all():
+        a00[~ok], a01[~ok], a11[~ok], a10[~ok], r2[~ok] = 1.0, 0.0, 1.0, 0.0, 0.0
+    return a00, a01, a10, a11, r2
+
+
+def minimize(system, X, iterations, tol, planar=False, anderson=5, callback=None, start=0):
+    """Run PD iterations to equilibrium, with safeguarded Anderson acceleration.
+
+    Anderson acceleration (type II, window ``anderson``) extrapolates the PD
+    fixed-point map from the last few steps; a candidate is kept only if it
+    lowers the energy, otherwise the plain PD step is taken and the history
+    restarts (Peng et al. 2018, "Anderson acceleration for geometry
+    optimization and physics simulation"). PD alone converges slowly on the
+    soft, low-frequency modes of a thin sheet (buckling, global bending).
+
+    Parameters
+    ----------
+    system : PDSystem
+    X : (d, n) float, mm
+        Start positions (component-major).
+    iterations : int
+    tol : float, mm
+        Stop when the largest vertex move of an iteration is below this.
+    anderson : int
+        History length; 0 gives plain PD.
+    callback : callable(iteration, (n, d) positions), optional
+    start : int
+        Iteration number offset for the callback.
+
+    Returns
+    -------
+    X : (d, n), energies : list of float (energy at the start of each
+    iteration), iterations run, converged : bool
+    """
+    Q, E = system.project(X, planar)
+    energies = []
+    dF, dG = [], []
+    f_prev = g_prev = None
+    converged = False
+    it = 0
+    for it in range(1, iterations + 1):
+        energies.append(E)
+        G = system.solve(Q, X)
+        F = (G - X).ravel()
+        cand = G
+        if anderson:
+            g = G.ravel()
+            if f_prev is not None:
+                dF.append(F - f_prev)
+                dG.append(g - g_prev)
+                if len(dF) > anderson:
+                    dF.pop(0)
+                    dG.pop(0)
+            f_prev, g_prev = F, g
+            if dF:
+                A = np.stack(dF, axis=1)
+                gamma = np.linalg.lstsq(A, F, rcond=None)[0]
+                cand = (g - np.stack(dG, axis=1) @ gamma).reshape(G.shape)
+        Qc, Ec = system.project(cand, planar)
+        if cand is not G and not Ec <= E:
+            cand = G
+            Qc, Ec = system.project(G, planar)
+            dF.clear()
+            dG.clear()
+            f_prev, g_prev = F, G.ravel()
+        change = float(np.abs(cand - X).max())
+        X, Q, E = cand, Qc, Ec
+        if callback is not None:
+            callback(start + it, X.T)
+        if change < tol:
+            converged = True
+            break
+    return X, energies, it, converged

@@ -9,7 +9,7 @@ with isoline-aligned printing edges, which is all the solvers need.
 """
 
 import numpy as np
-from scipy.ndimage import map_coordinates
+from scipy.ndimage import map_coordinates, maximum_filter
 from scipy.spatial import Delaunay, cKDTree
 
 import contourpy
@@ -151,8 +151,8 @@ def isoline_mesh(hf, spacing_mm=2.0, l_u=1.5, level0_frac=0.08, fill_mm=None):
     """Mesh a :class:`HeightField` along its isolines (closed loops or open arcs).
 
     spacing_mm : height step between isolines; l_u : max printing edge length;
-    fill_mm : grid points farther than this from every isoline sample are
-    added as vertices (apexes, saddles, flat areas); default 2 * l_u.
+    fill_mm : if given, grid points farther than this from every isoline
+    sample are added as vertices; summits (local maxima) always are.
     The footprint boundary is the isoline at ``level0_frac`` of the height.
     """
     z = hf.z[::-1]  # contourpy wants increasing y; row 0 of hf is north
@@ -182,14 +182,21 @@ def isoline_mesh(hf, spacing_mm=2.0, l_u=1.5, level0_frac=0.08, fill_mm=None):
         zz = np.nan_to_num(z, nan=-1.0)
         return map_coordinates(zz, rc, order=1, mode="constant", cval=-1.0)
 
-    fill = 2.0 * l_u if fill_mm is None else fill_mm
-    step = max(int(round(fill / p / 2)), 1)
-    gy, gx = np.mgrid[0:rows:step, 0:cols:step]
-    cand = np.column_stack([gx.ravel() * p, gy.ravel() * p, z[gy, gx].ravel()])
-    cand = cand[np.isfinite(cand[:, 2]) & (cand[:, 2] > level0 + 0.5 * spacing_mm)]
-    iso_xy = np.vstack([l[:, :2] for l in loops])
-    dist, _ = cKDTree(iso_xy).query(cand[:, :2])
-    extra = cand[dist > fill]
+    # Vertices off the isolines: summits (like the mesher's fan centres) and,
+    # optionally, fill points in wide flat gaps. Bridge-only patches are stiff
+    # in the flattening, so the default adds summits only.
+    zz = np.nan_to_num(z, nan=-np.inf)
+    peak = (zz == maximum_filter(zz, size=5)) & (zz > level0 + spacing_mm)
+    pr, pc = np.nonzero(peak)
+    extra = np.column_stack([pc * p, pr * p, z[pr, pc]])
+    if fill_mm is not None:
+        step = max(int(round(fill_mm / p / 2)), 1)
+        gy, gx = np.mgrid[0:rows:step, 0:cols:step]
+        cand = np.column_stack([gx.ravel() * p, gy.ravel() * p, z[gy, gx].ravel()])
+        cand = cand[np.isfinite(cand[:, 2]) & (cand[:, 2] > level0 + 0.5 * spacing_mm)]
+        iso_xy = np.vstack([l[:, :2] for l in loops])
+        dist, _ = cKDTree(iso_xy).query(cand[:, :2])
+        extra = np.vstack([extra, cand[dist > fill_mm]])
     # Chords of convex stretches sag slightly outside the boundary isoline.
     inside = lambda q: height(q) >= level0 - 0.1 * spacing_mm
     return mesh_from_loops(loops, closed, levels, extra=extra, inside=inside)
