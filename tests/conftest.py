@@ -24,3 +24,21 @@ def reference_mesh(name, **kwargs):
     from pipeline import shapes
     from pipeline.mesh import build_mesh
     return build_mesh(shapes.REFERENCE[name](), **kwargs)
+
+
+@functools.lru_cache(maxsize=None)
+def reference_flat(name):
+    """(mesh, FlatResult) of a synthetic reference shape with the paper's defaults."""
+    from pipeline.flatten import flatten
+    mesh = reference_mesh(name)
+    return mesh, flatten(mesh)
+
+
+@functools.lru_cache(maxsize=None)
+def reference_toolpaths(name, path_width_mm=0.48):
+    """(mesh, FlatResult, Toolpaths) of a synthetic reference shape."""
+    from pipeline.toolpath import plan_toolpaths
+    mesh, flat = reference_flat(name)
+    tp = plan_toolpaths(flat.xy, mesh.faces, mesh.vertex_level, mesh.printing_edges,
+                        flat.sigma, path_width_mm)
+    return mesh, flat, tp

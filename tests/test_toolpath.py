@@ -1,0 +1,93 @@
+"""Tool paths (paper 6.3): continuous, equally spaced, covering the flat sheet."""
+
+import numpy as np
+import pytest
+import shapely
+
+from conftest import reference_toolpaths
+from pipeline.toolpath import boundary_loop, merge_collinear, path_field, plan_toolpaths
+
+PW = 0.48
+
+
+@pytest.mark.parametrize("name", ["dome", "saddle", "starfish"])
+def test_paths_are_equally_spaced_and_cover_the_sheet(name):
+    _, _, tp = reference_toolpaths(name)
+    s = tp.info["spacing_mm"]
+    assert s["target"] == PW
+    assert 0.8 * PW <= s["p05"] and s["p95"] <= 1.2 * PW, s
+    assert tp.info["coverage"] > 0.95
+    assert tp.info["overlap"] < 0.05
+
+
+def test_dome_is_one_continuous_trace_without_sharp_turns():
+    _, _, tp = reference_toolpaths("dome")
+    assert tp.info["traces"] == 1
+    assert tp.info["travel_moves"] == 0
+    assert tp.info["sharp_turns"] == 0
+
+
+def test_two_peaks_need_few_traces():
+    # One trace per peak region: a saddle splits the paths into two nests of loops.
+    _, _, tp = reference_toolpaths("saddle")
+    assert 2 <= tp.info["traces"] <= 4
+
+
+@pytest.mark.parametrize("name", ["dome", "saddle"])
+def test_paths_stay_inside_the_flat_footprint(name):
+    mesh, flat, tp = reference_toolpaths(name)
+    outline = shapely.Polygon(flat.xy[boundary_loop(mesh.faces)])
+    pts = np.concatenate(tp.traces)
+    inside = shapely.contains_xy(outline.buffer(1e-6), pts[:, 0], pts[:, 1])
+    assert inside.all()
+
+
+def test_segments_carry_the_shrink_of_the_printing_edges():
+    _, flat, tp = reference_toolpaths("dome")
+    sig = np.concatenate(tp.sigma)
+    assert len(sig) == sum(len(t) - 1 for t in tp.traces)
+    # Same range as the printing edges (interpolation cannot leave it).
+    assert sig.min() >= flat.sigma.min() - 1e-9 and sig.max() <= flat.sigma.max() + 1e-9
+    # On a dome shrink grows outward: outer paths shrink more than inner ones.
+    pts = np.concatenate([t[:-1] for t in tp.traces])
+    r = np.linalg.norm(pts - pts.mean(axis=0), axis=1)
+    assert np.corrcoef(r, sig)[0, 1] > 0.8
+
+
+def test_path_index_field_on_a_flat_disc_counts_path_widths():
+    # A flat disc whose isolines are circles: the path index grows by 1 per width.
+    n_r, n_t = 40, 120
+    r = np.linspace(1.0, 20.0, n_r)
+    t = np.linspace(0, 2 * np.pi, n_t, endpoint=False)
+    R, T = np.meshgrid(r, t, indexing="ij")
+    xy = np.column_stack([(R * np.cos(T)).ravel(), (R * np.sin(T)).ravel()])
+    level = -R.ravel()                      # rises toward the centre
+    idx = np.arange(n_r * n_t).reshape(n_r, n_t)
+    a, b = idx[:-1], np.roll(idx[:-1], -1, axis=1)
+    c, d = idx[1:], np.roll(idx[1:], -1, axis=1)
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                            np.stack([a, d, c], -1).reshape(-1, 3)])
+    # Counter-clockwise in the plane.
+    p = xy[faces]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    faces[cross < 0] = faces[cross < 0][:, ::-1]
+    u = path_field(xy, faces, level, 0.5)
+    assert u.reshape(n_r, n_t)[0].mean() - u.reshape(n_r, n_t)[-1].mean() == \
+        pytest.approx(19.0 / 0.5, rel=0.01)
+    tp = plan_toolpaths(xy, faces, level, np.zeros((0, 2), int), np.zeros(0), 0.5)
+    assert tp.info["spacing_mm"]["p50"] == pytest.approx(0.5, rel=0.02)
+    assert tp.info["traces"] == 1
+
+
+def test_collinear_segments_merge_unless_shrink_differs():
+    pts = np.column_stack([np.linspace(0, 10, 41), np.zeros(41)])
+    sig = np.full(40, 0.1)
+    p, s = merge_collinear(pts, sig, 2.0, 0.005)
+    assert len(p) == 2 and s == pytest.approx([0.1])
+    sig[20:] = 0.2
+    p, s = merge_collinear(pts, sig, 2.0, 0.005)
+    assert len(p) == 3 and s == pytest.approx([0.1, 0.2])
+    bent = pts.copy()
+    bent[20:, 1] = (bent[20:, 0] - 5.0) * 0.2   # an 11 degree bend at x = 5
+    p, _ = merge_collinear(bent, np.full(40, 0.1), 2.0, 0.005)
+    assert len(p) == 3
