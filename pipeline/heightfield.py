@@ -27,17 +27,13 @@ from PIL import Image
 
 from pipeline.errors import InvalidHeightField, InvalidSidecar
 from pipeline.geometry import HeightField
+from pipeline.profile import Defaults, MeshParams, ValidateParams
 from pipeline.raster import pixel_barycentrics, rasterize_triangles
 
 IMAGE_EXT = (".png", ".tif", ".tiff")
 ARRAY_EXT = (".npy", ".npz")
 MESH_EXT = (".stl", ".obj", ".ply", ".glb")
 
-# Used when no profile is given (same as the profile schema's defaults).
-_DEFAULT_SIZE_MM = 150.0
-_DEFAULT_HEIGHT_MM = 30.0
-_DEFAULT_MAX_PIXELS = 25_000_000
-_DEFAULT_MIN_PIXELS = 16
 # Grid pitch for meshes without pixel_mm: about the paper's path width.
 MESH_PIXEL_MM = 0.5
 
@@ -157,11 +153,10 @@ def settings(sidecar, profile=None):
 
     Returns dict with ``max_fill_mm``, ``min_prominence_mm``, ``smooth_mm``.
     """
-    out = {"max_fill_mm": 2.0, "min_prominence_mm": 2.0, "smooth_mm": 1.0}
-    if profile is not None:
-        out.update(max_fill_mm=profile.validate.max_fill_mm,
-                   min_prominence_mm=profile.mesh.min_prominence_mm,
-                   smooth_mm=profile.mesh.smooth_mm)
+    vp, mp = (profile.validate, profile.mesh) if profile is not None else (ValidateParams(),
+                                                                           MeshParams())
+    out = {"max_fill_mm": vp.max_fill_mm, "min_prominence_mm": mp.min_prominence_mm,
+           "smooth_mm": mp.smooth_mm}
     for k in ("max_fill_mm", "min_prominence_mm"):
         if getattr(sidecar, k) is not None:
             out[k] = getattr(sidecar, k)
@@ -206,15 +201,15 @@ def load(path, profile=None, max_pixels=None):
                     "use a grayscale PNG/TIFF, .npy/.npz in mm, or an STL/OBJ/PLY/GLB mesh")
     _check_magic(path, ext)
     sidecar = load_sidecar(sidecar_path(path))
+    # Without a profile, the profile schema's defaults apply.
+    defaults, limits = (profile.defaults, profile.validate) if profile is not None else (
+        Defaults(), ValidateParams())
     if max_pixels is None:
-        max_pixels = profile.validate.max_pixels if profile is not None else _DEFAULT_MAX_PIXELS
-    size_mm = profile.defaults.size_mm if profile is not None else _DEFAULT_SIZE_MM
-    height_mm = profile.defaults.height_mm if profile is not None else _DEFAULT_HEIGHT_MM
-    min_pixels = profile.validate.min_pixels if profile is not None else _DEFAULT_MIN_PIXELS
+        max_pixels = limits.max_pixels
 
     color = None
     if ext in IMAGE_EXT:
-        values, unit_height = _read_image(path, max_pixels), height_mm
+        values, unit_height = _read_image(path, max_pixels), defaults.height_mm
     elif ext in ARRAY_EXT:
         values, unit_height = _read_array(path, ext, max_pixels), None
     else:
@@ -222,8 +217,8 @@ def load(path, profile=None, max_pixels=None):
         unit_height = None
     z = _to_mm(values, path, sidecar, unit_height)
     if ext not in MESH_EXT:
-        pixel_mm = _pixel_mm(z, sidecar, size_mm)
-    _check_size(z, path, min_pixels)
+        pixel_mm = _pixel_mm(z, sidecar, defaults.size_mm)
+    _check_size(z, path, limits.min_pixels)
     if color is None:
         color = _read_color(path, z.shape, max_pixels)
     return HeightField(z, float(pixel_mm), color=color, source=name), sidecar
@@ -273,7 +268,7 @@ def _too_many(path, pixels, max_pixels, what="image"):
 
 
 def _read_image(path, max_pixels):
-    """Grey values (rows, cols) float with NaN where alpha == 0; unit: fraction of full scale."""
+    """Grey values (rows, cols) float in the file's own steps, NaN where alpha == 0."""
     name = str(path)
     try:
         with warnings.catch_warnings():
@@ -302,30 +297,21 @@ def _read_image(path, max_pixels):
             mode = "RGBA"
         a = np.asarray(im)
     alpha = None
-    if mode in ("L", "LA"):
-        full = 255.0
-    elif mode.startswith("I;16"):
-        full = 65535.0
-    elif mode == "I":
-        full = 65535.0 if a.max(initial=0) <= 65535 else float(np.iinfo(np.int32).max)
-    elif mode == "F":
-        full = 1.0
-    elif mode in ("RGB", "RGBA"):
+    if mode in ("RGB", "RGBA"):
         # Many tools save grey as RGB; only genuinely coloured heights are refused.
         rgb = a[..., :3]
         if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
             raise _fail("heightfield.not_2d",
                         "image is in colour (%s); heights must be one grey channel" % mode, name,
                         "save the heights as 8/16-bit grayscale and any colour as NAME.color.png")
-        full = 255.0
-    else:
+    elif mode not in ("L", "LA", "I", "F") and not mode.startswith("I;16"):
         raise _fail("heightfield.unsupported_type", "unsupported image mode %r" % mode, name,
                     "save as 8- or 16-bit grayscale (optionally with alpha)")
     if a.ndim == 3:
         if a.shape[2] in (2, 4):
             alpha = a[..., -1]
         a = a[..., 0]
-    v = a.astype(np.float64) / full
+    v = a.astype(np.float64)
     if alpha is not None:
         v[alpha == 0] = np.nan
     return v
@@ -400,8 +386,8 @@ def _read_array(path, ext, max_pixels):
 def _to_mm(v, path, sidecar, unit_height_mm):
     """Heights in mm above the footprint's lowest point, NaN outside.
 
-    ``unit_height_mm`` is the default full-scale height for images (fraction
-    inputs); None for inputs already in millimetres.
+    ``unit_height_mm`` is the default maximum height for images (whose grey
+    steps have no unit); None for inputs already in millimetres.
     """
     name = str(path)
     inside = ~np.isnan(v)
@@ -421,16 +407,10 @@ def _to_mm(v, path, sidecar, unit_height_mm):
     if sidecar.height_mm is not None:
         z *= sidecar.height_mm / (hi - lo)
     elif sidecar.height_scale is not None:
-        # Per input unit: images in their integer steps, arrays/meshes in their own unit.
-        z *= sidecar.height_scale * (_image_steps(path) if unit_height_mm is not None else 1.0)
+        z *= sidecar.height_scale  # per input unit: grey step, or the array's/mesh's unit
     elif unit_height_mm is not None:
         z *= unit_height_mm / (hi - lo)
     return z
-
-
-def _image_steps(path):
-    with Image.open(path) as im:
-        return 65535.0 if im.mode.startswith("I") else 1.0 if im.mode == "F" else 255.0
 
 
 def _pixel_mm(z, sidecar, default_size_mm):
