@@ -159,7 +159,8 @@ def _report(path, profile, p, vrep, srep, timing):
             "has_color": hf.color is not None,
             "simplified": {"peaks_before": int(srep.get("peaks_before", 0)),
                            "peaks_after": int(srep.get("peaks_after", 0)),
-                           "removed_peaks": len(srep.get("removed_peaks", [])),
+                           "removed_peaks": int(srep.get("removed_count",
+                                                         len(srep.get("removed_peaks", [])))),
                            "max_change_mm": float(srep.get("max_change_mm", 0.0))},
         },
         "mesh": {

@@ -1,0 +1,141 @@
+"""Pipeline benchmarks: flatten scaling and whole `hostd plan` runs. Prints JSON.
+
+Each case runs in a fresh child process pinned to one core (BLAS threads 1),
+so times are single-core and the peak resident memory (ru_maxrss) is the
+case's own. Targets (issues 3 and 5) are reported next to the measurements;
+nothing here asserts them.
+
+    python benchmarks/pipeline.py                 # everything
+    python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TERRAIN = ROOT.parent / "shared" / "data" / "terrain"
+ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+TARGETS = {
+    "flatten_20k_s": 1.5, "flatten_200k_s": 20.0,
+    "plan_issue3_stages_175mm_s": 10.0, "plan_175mm_total_s": 15.0, "plan_peak_rss_mb": 1024,
+}
+
+
+def _child(code, *args):
+    """Run ``code`` in a child on one core; it prints one JSON object."""
+    env = dict(os.environ, **ONE_CORE)
+    pre = ("import os, sys, json, time, resource\n"
+           "os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})\n")
+    out = subprocess.run([sys.executable, "-c", pre + code, *args], env=env, cwd=ROOT,
+                         capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        return {"error": out.stderr.strip().splitlines()[-1] if out.stderr else "failed"}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+FLATTEN = r"""
+from pipeline import shapes
+from pipeline.mesh import build_mesh
+from pipeline.flatten import flatten
+target = int(sys.argv[1])
+hf = shapes.dome(diameter_mm=175.0, height_mm=33.0)
+# Triangle count scales with 1 / l_u: one calibration mesh, then the real one.
+n0 = len(build_mesh(hf, l_u_mm=1.0).faces)
+mesh = build_mesh(hf, l_u_mm=max(n0 / target, 0.02))
+t = time.perf_counter()
+res = flatten(mesh, iterations=50, tol=0.0)
+dt = time.perf_counter() - t
+print(json.dumps({"triangles": len(mesh.faces), "iterations": res.iterations,
+                  "flatten_s": round(dt, 3), "setup_s": round(res.timing_s["setup"], 3),
+                  "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))
+"""
+
+PLAN = r"""
+import io, shutil
+from pathlib import Path
+import numpy as np
+from pipeline.profile import load_profile
+from hostd import planner
+path, outdir = sys.argv[1], sys.argv[2]
+prof = load_profile("generic-0.5mm")
+t = time.perf_counter()
+plan = planner.run(path, prof, outdir)
+wall = time.perf_counter() - t
+r = plan.report
+ts = r["timing_s"]
+issue3 = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
+g = r["gcode"]
+print(json.dumps({
+    "input": r["input"], "longest_diameter_mm": round(r["heightfield"]["longest_diameter_mm"], 1),
+    "triangles": r["mesh"]["triangles"], "timing_s": ts, "issue3_stages_s": round(issue3, 3),
+    "wall_s": round(wall, 3),
+    "invalid_edge_fraction": round(r["flatten"]["invalid_edge_fraction"], 4),
+    "mean_displacement_mm": round(r["simulation"]["mean_displacement_mm"], 3),
+    "mean_displacement_pct_of_diameter": round(100 * r["simulation"]["mean_displacement_fraction"], 3),
+    "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
+    "coverage": round(r["toolpath"]["coverage"], 4),
+    "gcode_lines": g["lines"], "gcode_bytes": g["bytes"], "moves_per_s": g["moves_per_s"],
+    "estimated_print_s": g["estimated_print_s"],
+    "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))
+"""
+
+SHAPE = r"""
+import numpy as np
+from pipeline import shapes
+name, out = sys.argv[1], sys.argv[2]
+hf = shapes.REFERENCE[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
+np.save(out + "/" + name + ".npy", hf.z.astype(np.float32))
+open(out + "/" + name + ".yaml", "w").write("pixel_mm: %r\n" % hf.pixel_mm)
+print(json.dumps({"ok": True}))
+"""
+
+
+def bench_flatten():
+    return {str(n): _child(FLATTEN, str(n)) for n in (5000, 20000, 80000, 200000)}
+
+
+def bench_plan(names=("starfish", "dome", "saddle", "three_islands")):
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            _child(SHAPE, name, tmp)
+            out[name] = _child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out")
+    return out
+
+
+def bench_terrain():
+    if not TERRAIN.is_dir():
+        return {"skipped": "../shared/data/terrain not present"}
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for png in sorted(TERRAIN.glob("*.png")):
+            out[png.stem] = _child(PLAN, str(png), tmp)
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=["flatten", "plan", "terrain"])
+    args = ap.parse_args()
+    t0 = time.time()
+    result = {"machine": {"cpu_count": os.cpu_count(), "python": sys.version.split()[0],
+                          "single_core": True}, "targets": TARGETS}
+    if args.only in (None, "flatten"):
+        result["flatten"] = bench_flatten()
+    if args.only in (None, "plan"):
+        result["plan"] = bench_plan()
+    if args.only in (None, "terrain"):
+        result["terrain"] = bench_terrain()
+    result["benchmark_wall_s"] = round(time.time() - t0, 1)
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
