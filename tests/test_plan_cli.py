@@ -1,0 +1,133 @@
+"""`hostd plan`: outputs, the report contract, and bad input leaving only an explanation."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pipeline import shapes
+
+# The report keys other tools read (issues 3 and 5): renaming any is a breaking change.
+CONTRACT = {
+    "input": str, "profile": str, "pipeline_version": str,
+    "heightfield": {"shape": list, "longest_diameter_mm": float, "max_height_mm": float,
+                    "filled_pits": int, "filled_volume_mm3": float},
+    "mesh": {"vertices": int, "triangles": int, "printing_edges": int, "bridge_edges": int,
+             "isolines": int, "saddles": int, "peaks": int},
+    "flatten": {"iterations": int, "converged": bool, "max_abs_z_mm": float,
+                "flipped_triangles": int, "invalid_edge_fraction": float,
+                "sigma": {"min": float, "p05": float, "mean": float, "p95": float, "max": float},
+                "bridge_strain": {"mean_abs": float, "max_abs": float}},
+    "simulation": {"mean_displacement_mm": float, "max_displacement_mm": float},
+    "toolpath": {"traces": int, "segments": int, "length_mm": float, "travel_moves": int,
+                 "sharp_turns": int, "coverage": float, "overlap": float,
+                 "spacing_mm": {"target": float, "p05": float, "p50": float, "p95": float}},
+    "gcode": {"lines": int, "bytes": int, "layers": int,
+              "thickness_mm": {"min": float, "max": float}, "clamped_segments": int,
+              "filament_mm": float, "estimated_print_s": float, "bed_fits": bool},
+    "timing_s": {"load": float, "validate": float, "mesh": float, "flatten": float,
+                 "simulate": float, "total": float, "toolpath": float, "gcode": float,
+                 "texture": float},
+}
+
+
+def check_contract(report, spec, where="report"):
+    for key, kind in spec.items():
+        assert key in report, "%s lacks %r" % (where, key)
+        if isinstance(kind, dict):
+            check_contract(report[key], kind, where + "." + key)
+        elif kind is float:
+            assert isinstance(report[key], (int, float)) and not isinstance(report[key], bool), \
+                "%s.%s is %r" % (where, key, report[key])
+        else:
+            assert isinstance(report[key], kind), "%s.%s is %r" % (where, key, report[key])
+
+
+def hostd(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "hostd", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def small_dome(tmp_path_factory):
+    d = tmp_path_factory.mktemp("in")
+    hf = shapes.dome(diameter_mm=60.0, height_mm=12.0)
+    np.save(d / "dome.npy", hf.z.astype(np.float32))
+    (d / "dome.yaml").write_text("pixel_mm: 0.5\n")
+    return d / "dome.npy"
+
+
+@pytest.mark.slow
+def test_plan_writes_every_output_and_the_report_contract(small_dome, tmp_path):
+    out = tmp_path / "out"
+    r = hostd("plan", small_dome, "--profile", "generic-0.5mm", "-o", out)
+    assert r.returncode == 0, r.stderr
+    names = sorted(os.listdir(out))
+    assert names == sorted("dome." + k for k in (
+        "report.json", "gcode", "flat.ply", "simulated.ply", "stress.png", "preview.png",
+        "toolpath.png", "input.png"))
+    report = json.loads((out / "dome.report.json").read_text())
+    check_contract(report, CONTRACT)
+    assert report["input"] == "dome.npy" and report["profile"] == "generic-0.5mm"
+    assert report["gcode"]["bytes"] == (out / "dome.gcode").stat().st_size
+    assert "invalid edges" in r.stdout
+
+
+BAD_INPUTS = {
+    "empty.png": (b"", "heightfield.empty"),
+    "text.png": (b"this is not an image\n" * 10, "heightfield.content_mismatch"),
+    "trunc.png": (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x01\x00", "heightfield.truncated"),
+    "data.csv": (b"1,2,3\n", "heightfield.unsupported_type"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_INPUTS))
+def test_bad_input_gets_its_code_and_an_error_file_and_nothing_else(name, tmp_path):
+    data, code = BAD_INPUTS[name]
+    src = tmp_path / name
+    src.write_bytes(data)
+    out = tmp_path / "out"
+    r = hostd("plan", src, "-o", out)
+    assert r.returncode == 2
+    assert code in r.stderr
+    stem = src.stem
+    assert sorted(os.listdir(out)) == [stem + ".error.json"]   # no half-written outputs
+    err = json.loads((out / (stem + ".error.json")).read_text())
+    assert err["code"] == code and err["input"] == name and err["fix"]
+    assert src.read_bytes() == data                              # the input is untouched
+
+
+def test_invalid_shape_is_refused_with_location(tmp_path):
+    # A bowl: a crater at the summit deeper than max_fill_mm.
+    hf = shapes.dome(diameter_mm=60.0, height_mm=12.0)
+    rows, cols = np.indices(hf.z.shape)
+    c = (np.array(hf.z.shape) - 1) / 2
+    crater = np.hypot(rows - c[0], cols - c[1]) < 12
+    z = np.where(crater, hf.z - 6.0, hf.z)
+    np.save(tmp_path / "bowl.npy", z.astype(np.float32))
+    (tmp_path / "bowl.yaml").write_text("pixel_mm: 0.5\n")
+    r = hostd("plan", tmp_path / "bowl.npy", "-o", tmp_path / "out")
+    assert r.returncode == 2
+    err = json.loads((tmp_path / "out" / "bowl.error.json").read_text())
+    assert err["code"] == "validate.depression"
+    assert "max_fill_mm" in err["text"]
+    assert os.listdir(tmp_path / "out") == ["bowl.error.json"]
+
+
+def test_unknown_profile_is_a_clear_error(small_dome, tmp_path):
+    r = hostd("plan", small_dome, "--profile", "no-such-printer", "-o", tmp_path)
+    assert r.returncode == 3
+    assert "profile.not_found" in r.stderr
+
+
+def test_staging_is_discarded_when_writing_fails(small_dome, tmp_path, monkeypatch):
+    from hostd import outputs
+    st = outputs.Staging(tmp_path)
+    st.write("a.txt", "x")
+    with pytest.raises(RuntimeError):
+        with st:
+            raise RuntimeError("disk full")
+    assert os.listdir(tmp_path) == []
