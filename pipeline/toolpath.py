@@ -257,8 +257,11 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
             p = p[:-1]
         chains.append((p, sg, closed))
     children = _nesting(chains, levels)
+    import shapely
+    footprint = shapely.Polygon(xy[boundary_loop(faces)]).buffer(0.25 * pw)
+    shapely.prepare(footprint)
     traces, tsig = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
-                                 merge_sigma)
+                                 merge_sigma, footprint)
     info = _metrics(traces, tsig, raw, xy, faces, pw)
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
 
@@ -283,12 +286,16 @@ def _nesting(chains, levels):
     return children
 
 
-def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma):
+def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footprint):
     """Chain loops and arcs into traces, outermost first, by nearest hops.
 
     After a loop, its enclosed loops come next (so a peak is printed in one
-    go, outside in); otherwise the nearest unvisited path.
+    go, outside in); otherwise the nearest unvisited path. Arcs that meet the
+    edge at a slant end further apart than a path width: a hop of up to three
+    link lengths still joins them where it runs inside the sheet (along its edge).
     """
+    import shapely
+
     entries, owner, index = [], [], []
     for c, (p, _, closed) in enumerate(chains):
         idx = np.arange(len(p)) if closed else np.array([0, len(p) - 1])
@@ -316,7 +323,10 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma):
             p, sg = p[::-1], sg[::-1]
         p, sg = merge_collinear(p, sg, merge_angle_deg, merge_sigma)
         visited[c] = True
-        if cur_p is not None and dist <= limit:
+        linked = cur_p is not None and (dist <= limit or (
+            dist <= 3 * link_mm and not closed and footprint.contains(
+                shapely.LineString([cur_p[-1], p[0]]))))
+        if linked:
             hop = 0.5 * (cur_s[-1] + sg[0]) if len(cur_s) and len(sg) else float(sg[0])
             cur_p = np.vstack([cur_p, p])
             cur_s = np.concatenate([cur_s, [hop], sg])
