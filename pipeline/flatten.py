@@ -12,8 +12,8 @@ Relocations, made dimensionally sound (all displacements in mm):
 - flattening: ``dz = -r_k * z``, a fraction of each vertex's height, so the
   push shrinks as the sheet gets flat and never overshoots the plane. The
   paper's ``-z / (z_max sqrt(lx ly))`` has units 1/mm; we keep its intent
-  without a size dependence. ``r_k`` ramps the height linearly to zero over
-  80 % of the iterations, capped at ``w_flattening`` per step (see
+  without a size dependence. ``r_k`` ramps the height linearly toward zero
+  over 80 % of the iterations, capped at ``w_flattening`` per step (see
   :func:`flattening_rate`): the paper's constant 0.3 from the first step
   crushes summits on fine meshes (measured on the elongated peak at
   l_u = 0.5 mm: 15 % invalid edges against 2.4 % with the ramp).
@@ -196,15 +196,18 @@ def flatten(mesh, s_min=0.0, s_max=0.343, iterations=50, weights=None, tol=1e-4,
 def flattening_rate(k, iterations, w_flattening, ramp=0.8):
     """Fraction of its height each vertex loses in iteration ``k`` (1-based).
 
-    A linear ramp: the height would reach zero at ``ramp * iterations``
-    (each step removes 1/(steps left) of it), capped at ``w_flattening`` per
-    step, which then keeps pressing at that rate. The paper's fixed 0.3 from
-    the first step presses a curved sheet flat before the constraints can
-    spread it (summits crush and flip on fine meshes); the ramp moves at
-    constant speed instead, and 20 % of the budget is left to settle flat.
+    A linear ramp: each step removes 1/(steps left) of the height, aiming at
+    z = 0 by ``ramp * iterations``, but never more than ``w_flattening`` (the
+    paper's rate), which then keeps pressing to the end. Since each step
+    takes a fraction, z never reaches exactly 0: what stays out of the plane
+    is what the constraints push back out (wrinkles where the layout is
+    compressed), and ``max_abs_z_mm`` reports it. The paper's constant rate
+    from the first step presses a curved sheet flat before the constraints
+    can spread it (summits crush and flip on fine meshes); the ramp moves at
+    constant speed instead.
     """
-    steps_left = max(int(np.ceil(ramp * iterations)) - k + 1, 1)
-    return min(float(w_flattening), 1.0 / steps_left)
+    ramp_end = max(int(np.ceil(ramp * iterations)), 1)
+    return min(float(w_flattening), 1.0 / max(ramp_end - k + 1, 1))
 
 
 def _printing_mask(edges, printing_edges):

@@ -214,3 +214,61 @@ def longest_diameter(mesh):
     h = xy[ConvexHull(xy).vertices]
     d = np.linalg.norm(h[:, None] - h[None], axis=2)
     return float(d.max())
+
+
+
+def blended_caps(caps, tau_mm=3.0, pixel_mm=1.0, margin_mm=4.0):
+    """Height field of elliptic caps blended by a soft maximum.
+
+    caps : list of (cx, cy, a, b, angle_rad, height) in mm. Each cap is
+    ``h (sqrt(2 - q) - 1) / (sqrt(2) - 1)`` with q the elliptic radius
+    squared: positive Gaussian curvature up to its rim, which meets the
+    ground at a finite slope. The soft maximum ``tau log sum exp(z_i / tau)``
+    joins caps through smooth saddles. Caps keep their rims curved, so a
+    flattened layout holds its shape (a rim that is nearly developable would
+    unroll under the bending toward flat and dominate the simulated error).
+    """
+    from pipeline.geometry import HeightField
+    pts = np.array([[cx - max(a, b), cy - max(a, b), cx + max(a, b), cy + max(a, b)]
+                    for cx, cy, a, b, _, _ in caps])
+    lo = pts[:, :2].min(axis=0) - margin_mm
+    hi = pts[:, 2:].max(axis=0) + margin_mm
+    nx = int(np.ceil((hi[0] - lo[0]) / pixel_mm)) + 1
+    ny = int(np.ceil((hi[1] - lo[1]) / pixel_mm)) + 1
+    x, y = np.meshgrid(lo[0] + np.arange(nx) * pixel_mm, hi[1] - np.arange(ny) * pixel_mm)
+    acc = np.zeros_like(x)
+    for cx, cy, a, b, ang, h in caps:
+        u = (x - cx) * np.cos(ang) + (y - cy) * np.sin(ang)
+        v = -(x - cx) * np.sin(ang) + (y - cy) * np.cos(ang)
+        q = (u / a) ** 2 + (v / b) ** 2
+        z = h * (np.sqrt(np.maximum(2.0 - q, 0.0)) - 1.0) / (np.sqrt(2.0) - 1.0)
+        acc += np.where(q <= 1.0, np.exp(z / tau_mm), 0.0)
+    z = np.where(acc > 0, tau_mm * np.log(np.maximum(acc, 1e-300)), np.nan)
+    return HeightField(z - np.nanmin(z), pixel_mm, source="blended_caps")
+
+
+def two_peaks(height_mm=28.0, pixel_mm=1.0):
+    """Two summits (28 and 22 mm) joined by a saddle, ~150 mm long."""
+    return blended_caps([(-35.0, 0.0, 45.0, 40.0, 0.0, height_mm),
+                         (35.0, 0.0, 42.0, 38.0, 0.0, 0.8 * height_mm)], pixel_mm=pixel_mm)
+
+
+
+def starfish_like(diameter_mm=170.0, height_mm=30.0, arms=5, neck=0.6, pixel_mm=1.0):
+    """One summit, five lobes: a cap over a star-shaped outline.
+
+    The outline is ``r_b(phi) = R (neck + (1 - neck) |cos(arms phi / 2)|^2)``
+    (non-convex for neck < ~0.8) and the height a spherical-cap profile of
+    ``rho = r / r_b(phi)``. Blunter necks than :func:`pipeline.shapes.starfish`
+    keep the total Gaussian curvature positive.
+    """
+    from pipeline.geometry import HeightField
+    R = diameter_mm / 2.0
+    n = int(round((diameter_mm + 8 * pixel_mm) / pixel_mm)) + 1
+    c = (np.arange(n) - (n - 1) / 2.0) * pixel_mm
+    x, y = np.meshgrid(c, -c)
+    r, phi = np.hypot(x, y), np.arctan2(y, x)
+    rb = R * (neck + (1.0 - neck) * np.abs(np.cos(arms * phi / 2.0)) ** 2)
+    q = (r / rb) ** 2
+    z = height_mm * (np.sqrt(np.maximum(2.0 - q, 0.0)) - 1.0) / (np.sqrt(2.0) - 1.0)
+    return HeightField(np.where(q <= 1.0, z, np.nan), pixel_mm, source="starfish_like")
