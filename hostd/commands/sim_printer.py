@@ -44,11 +44,11 @@ def run(args):
     signal.signal(signal.SIGINT, on_signal)
     sim = Simulator(config, baud=args.baud, link_path=args.link)
     try:
-        path = sim.start()
+        sim.start()
     except PrinterError as exc:
         print("hostd sim-printer: %s" % exc, file=sys.stderr)
         return 1
-    print(path, flush=True)
+    print(sim.endpoint.path, flush=True)   # the pty itself; --link points at it
     try:
         while not stop.wait(0.5):
             if sim.error is not None:

@@ -32,6 +32,8 @@ def add_parser(subparsers):
                         help="one line in flight even if the firmware reports ADVANCED_OK")
     parser.add_argument("--ok-timeout", type=float, default=LinkSettings.ok_timeout_s, metavar="S",
                         help="seconds of silence before the M105/resend recovery (default %(default)s)")
+    parser.add_argument("--open-timeout", type=float, default=LinkSettings.open_timeout_s, metavar="S",
+                        help="wait this long for the port to appear (default %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar even on a terminal")
     parser.set_defaults(func=run)
     return parser
@@ -39,7 +41,7 @@ def add_parser(subparsers):
 
 def run(args):
     settings = LinkSettings(baud=args.baud, send_ahead=not args.ping_pong, ok_timeout_s=args.ok_timeout,
-                            reconnect=False)
+                            open_timeout_s=args.open_timeout, reconnect=False)
     show = sys.stderr.isatty() and not args.no_progress
     summary = dict(lines=0, bytes=0, resends=0, seconds=0.0, lines_per_s=0.0, link_utilisation=0.0,
                    result="error", error=None)

@@ -423,9 +423,20 @@ class Printer:
     def _do_estop(self):
         self._finish_job(ERROR, "emergency stop")
         self.last_error = "emergency stop (M112)"
-        self._priority.clear()
-        self._emit("estop")
+        self._abandon_stream()
+        # Without EMERGENCY_PARSER the M112 waits behind the queued commands.
+        self._emit("estop", emergency_parser=bool(self.capabilities.get("EMERGENCY_PARSER")))
         self._set_state(ERROR_STATE)
+
+    def _abandon_stream(self):
+        """Stop waiting for answers and drop anything queued (the firmware is halted)."""
+        self._priority.clear()
+        self._fifo.clear()
+        self._fifo_bytes = 0
+        self._limbo = []
+        self._error_acks = 0
+        self._cursor = self._next_n
+        self._resync_until = 0.0
 
     def _queue_script(self, name, text):
         for command in script_lines(text):
@@ -541,7 +552,7 @@ class Printer:
             return
         self.last_error = text
         self._finish_job(ERROR, text)
-        self._priority.clear()
+        self._abandon_stream()
         self._set_state(ERROR_STATE)
         if not any(word in text.lower() for word in _FATAL_WORDS):
             self._queue_script("error", self.settings.error_gcode)  # it still listens
@@ -549,7 +560,7 @@ class Printer:
     def _fatal(self, code, message):
         self.last_error = "%s: %s" % (code, message)
         self._finish_job(ERROR, message)
-        self._priority.clear()
+        self._abandon_stream()
         self._set_state(ERROR_STATE)
 
     # -- sending -------------------------------------------------------------------------
@@ -560,14 +571,15 @@ class Printer:
             return
         now = time.monotonic()
         if (self._fifo or self._error_acks) and now - self._last_rx >= self.settings.ok_timeout_s:
+            if self._state == ERROR_STATE:
+                self._abandon_stream()   # best-effort error script: no recovery games
+                return
             self._timeouts += 1
             self.stats["timeouts"] += 1
             self._emit("timeout", count=self._timeouts, in_flight=len(self._fifo))
             if self._timeouts > self.settings.max_timeouts:
                 self._fatal("timeout", "printer not responding: no answer for %.1f s, %d recoveries failed"
                             % (self.settings.ok_timeout_s, self._timeouts - 1))
-                self._fifo.clear()
-                self._fifo_bytes = 0
                 return
             # OctoPrint's recovery: whatever was in flight lost its answer; probe with a
             # numbered M105 -- accepted means those lines got through, Resend means not.

@@ -1,0 +1,101 @@
+"""``hostd stream`` end to end through ``hostd sim-printer`` on a real pty (two processes)."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from printer_helpers import HOUSEKEEPING, moves
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def hostd(*args, **kwargs):
+    return [sys.executable, "-m", "hostd"] + list(args)
+
+
+@pytest.fixture
+def sim_printer(tmp_path):
+    """Start ``hostd sim-printer`` with the given flags; yields (link path, record file)."""
+    procs = []
+
+    def start(*flags):
+        link = str(tmp_path / "printer")
+        record = str(tmp_path / "record.json")
+        proc = subprocess.Popen(hostd("sim-printer", "--link", link, "--record", record, *flags),
+                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(proc)
+        path = proc.stdout.readline().strip()
+        if not path.startswith("/dev/"):
+            proc.kill()
+            pytest.fail("sim-printer printed %r: %s" % (path, proc.stderr.read()))
+        assert os.path.realpath(link) == path
+        return link, record, proc
+
+    yield start
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(10)
+
+
+def stop(proc, record):
+    proc.terminate()
+    assert proc.wait(10) == 0
+    with open(record) as handle:
+        return json.load(handle)
+
+
+def test_stream_through_sim_printer_prints_the_json_line(sim_printer, tmp_path):
+    lines = ["G28", "M104 S200", "M109 S200", "G92 E0"] + moves(1500)
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("; generated\n" + "\n".join(line + " ; comment" for line in lines) + "\n")
+    link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "0",
+                                     "--fault-corrupt", "0.01", "--seed", "7")
+    done = subprocess.run(hostd("stream", str(gcode), "--port", link, "--baud", "250000"),
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    out = done.stdout.strip().splitlines()
+    assert len(out) == 1
+    summary = json.loads(out[0])
+    assert set(summary) == {"lines", "bytes", "resends", "seconds", "lines_per_s", "link_utilisation",
+                            "result", "error"}
+    assert summary["result"] == "done" and summary["error"] is None
+    assert summary["lines"] == len(lines)
+    assert summary["resends"] >= 5
+    assert 0 < summary["link_utilisation"] <= 1.05
+    assert abs(summary["lines_per_s"] - summary["lines"] / summary["seconds"]) < 1
+    recorded = stop(proc, record)
+    executed = [c for c in recorded["commands"] if c.split()[0] not in HOUSEKEEPING]
+    assert executed == lines
+    assert recorded["stats"]["rx_overruns"] == 0
+
+
+def test_stream_reports_firmware_error_and_exits_non_zero(sim_printer, tmp_path):
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("\n".join(moves(300)) + "\n")
+    link, record, proc = sim_printer("--baud", "250000", "--time-scale", "0", "--fault-runaway-line", "100")
+    done = subprocess.run(hostd("stream", str(gcode), "--port", link, "--baud", "250000"),
+                          cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert summary["result"] == "error"
+    assert summary["error"] == "Error:Thermal Runaway, system stopped! Heater_ID: 0"
+    assert 0 < summary["lines"] < 100
+
+
+def test_stream_to_missing_port_fails_cleanly(tmp_path):
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("G1 X1\n")
+    started = time.monotonic()
+    done = subprocess.run(hostd("stream", str(gcode), "--port", str(tmp_path / "nothing"),
+                                "--open-timeout", "0.5"),
+                          cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert summary["result"] == "error" and "cannot open" in summary["error"]
+    assert "Traceback" not in done.stderr
+    assert time.monotonic() - started < 30
