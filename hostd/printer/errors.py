@@ -11,7 +11,8 @@ class PrinterError(Exception):
     while connecting), ``timeout`` (printer stopped answering during a job), ``firmware``
     (the firmware reported an error such as thermal runaway; message is verbatim),
     ``resend`` (a resend request we cannot satisfy), ``state`` (call not valid in the
-    current state), ``config`` (bad port URL or option), ``halted`` (emergency stop).
+    current state), ``config`` (bad port URL or option), ``internal`` (a bug in the
+    driver, reported instead of hanging the caller).
     """
 
     def __init__(self, code, message):

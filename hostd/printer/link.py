@@ -19,6 +19,7 @@ queues from :meth:`Printer.subscribe`): :class:`Event` with ``kind`` in ``state`
 import queue
 import threading
 import time
+import traceback
 from collections import OrderedDict, deque
 from concurrent.futures import Future
 from dataclasses import dataclass, field
@@ -262,6 +263,11 @@ class Printer:
                 self._lost(str(lost))
                 if self.settings.reconnect and not self._closing:
                     reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
+            except Exception as exc:
+                # A bug must not kill the thread that owns the printer: stop the job
+                # loudly, keep serving (estop, connect) and report it.
+                traceback.print_exc()
+                self._fatal("internal", "driver error: %r" % exc)
 
     def _wait_s(self, now, reconnect_at):
         deadlines = [now + 0.5]
@@ -292,6 +298,10 @@ class Printer:
             except _PortLost as exc:
                 if future:
                     future.set_exception(PrinterError("port", str(exc)))
+                raise
+            except Exception as exc:
+                if future:   # a bug: tell the caller instead of leaving it waiting
+                    future.set_exception(PrinterError("internal", "%s failed: %r" % (name, exc)))
                 raise
             else:
                 if future:
