@@ -23,6 +23,19 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+# Faces x 3 per block of the local step: big enough to amortise numpy's call
+# overhead, small enough for its temporaries to stay in cache.
+_BLOCK = 3 * 4096
+
+
+def _next_in_face(k, _cache={}):
+    """Index of half-edge j+1 of the same face, for k consecutive half-edges."""
+    if k not in _cache:
+        j = np.arange(k)
+        _cache[k] = (j // 3) * 3 + (j % 3 + 1) % 3
+    return _cache[k]
+
+
 # Rest triangles are kept at least this fat (area / sum of squared sides) so
 # that inconsistent rest lengths (a bridge strained past the triangle
 # inequality) give bounded cotangents instead of an ill-conditioned system.
@@ -224,10 +237,13 @@ class PDSystem:
         self.edge_lo = edge.lo * self.edge_scale
         self.edge_hi = edge.hi * self.edge_scale
         self.edge_w = np.asarray(edge.weight, dtype=float)
+        ei = np.arange(e)
+        self.Ae = sp.csr_matrix((np.concatenate([-self.edge_scale, self.edge_scale]),
+                                 (np.concatenate([ei, ei]), top.edges.T.ravel())), shape=(e, n))
+        self.AeT = self.Ae.T.tocsr()
         # Shear rows: corner k has U0 = s_k h_k and U1 = -s_{k+2} h_{k+2}, s = 1/sqrt(rest length).
         self.he_scale = 1.0 / np.sqrt(rest_len[he_edge])
         corner = np.arange(3 * m).reshape(m, 3)
-        self._next = corner[:, [1, 2, 0]].ravel()  # half-edge j+1 of the same face
         self.he_scale_next2 = self.he_scale[corner[:, [2, 0, 1]].ravel()]
         self.w_shear = float(w_shear)
         _, _, angle = face_geometry(top, rest_len)
@@ -266,49 +282,63 @@ class PDSystem:
     def project(self, Xc, planar=False):
         """Local step at ``Xc`` ((d, n)).
 
-        Returns (Q, energy): Q ((d, 3m)) are the weighted projections summed
-        per half-edge (the global step's right-hand side is ``D^T Q``), and
-        energy is the total constraint energy at ``Xc``.
+        Returns (Q, energy): Q is a pair (shear projections weighted and
+        summed per half-edge (d, 3m), weighted edge projections (d, e)); the
+        global step's right-hand side is ``D^T Q[0] + Ae^T Q[1]``. Energy is
+        the total constraint energy at ``Xc``.
         ``planar`` measures corner angles signed about +z so that flipped
         triangles in the plane are pushed back instead of ignored.
         """
         d, m = len(Xc), len(self.top.faces)
         H = self.half_edges(Xc)
-        Ye = H[:, self.edge_he]
-        Ye *= self.edge_coef
+        Ye = np.stack([self.Ae @ x for x in Xc])
         Pe, re2 = project_edges(Ye, self.edge_lo, self.edge_hi, return_residual=True)
-        # Corner k of a face: U0 = s_k h_k, U1 = -s_{k+2} h_{k+2}. Work on scalars
-        # per corner and the two half-edge arrays H and Hn (= h_{k+2}) only.
-        Hn = H.reshape(d, m, 3)[:, :, [2, 0, 1]].reshape(d, -1)
-        s0 = self.he_scale
-        s1 = self.he_scale_next2
+        Pe *= self.edge_w
+        Q = np.empty_like(H)
+        rc2 = 0.0
+        # Blocks of faces keep the corner arithmetic in cache on big meshes.
+        for lo in range(0, 3 * m, _BLOCK):
+            sl = slice(lo, min(lo + _BLOCK, 3 * m))
+            rc2 += self._corner_block(H[:, sl], Q[:, sl], sl, planar)
+        bend = sum(float(np.dot(v, v)) for v in (self.B @ x for x in Xc))
+        E = 0.5 * (float(self.edge_w @ re2) + self.w_shear * rc2 + self.w_bending * bend)
+        return (Q, Pe), E
+
+    def _corner_block(self, H, Q, sl, planar):
+        """Shear projections of the corners of a block of whole faces.
+
+        H : (d, 3b) half-edge vectors of the block; Q : (d, 3b) output,
+        overwritten with the weighted projections summed per half-edge.
+        Returns the block's summed squared residual.
+        """
+        d, k = H.shape
+        b = k // 3
+        # Corner k of a face: U0 = s_k h_k, U1 = -s_{k+2} h_{k+2}; work on
+        # scalars per corner and on H and Hn (= h_{k+2}) only.
+        Hn = H.reshape(d, b, 3)[:, :, [2, 0, 1]].reshape(d, k)
+        s0 = self.he_scale[sl]
+        s1 = self.he_scale_next2[sl]
         hh = np.einsum("ij,ij->j", H, H)
         L0 = hh * s0 * s0
-        L1 = hh.reshape(m, 3)[:, [2, 0, 1]].ravel() * (s1 * s1)
-        dot = np.einsum("ij,ij->j", H, Hn)
-        dot *= -s0 * s1
-        if planar:
-            sn = (H[0] * Hn[1] - H[1] * Hn[0]) * (-s0 * s1)
-        else:
-            sn = None
-        a00, a01, a10, a11, rc2 = corner_coefficients(L0, L1, dot, sn, self.cos0, self.sin0)
+        L1 = hh.reshape(b, 3)[:, [2, 0, 1]].ravel() * (s1 * s1)
+        ss = -s0 * s1
+        dot = np.einsum("ij,ij->j", H, Hn) * ss
+        sn = (H[0] * Hn[1] - H[1] * Hn[0]) * ss if planar else None
+        a00, a01, a10, a11, rc2 = corner_coefficients(L0, L1, dot, sn, self.cos0[sl],
+                                                      self.sin0[sl])
         # Half-edge j is U0 of corner j and -U1 of corner j+1; with
         # h_{j+1} = -h_j - h_{j+2} (a triangle closes) the weighted sum is
         # Q_j = w s_j [(a00_j s_j + a11_{j+1} s_j + a10_{j+1} s_{j+1}) h_j
         #              + (a10_{j+1} s_{j+1} - a01_j s_{j+2}) h_{j+2}].
-        nxt = self._next
+        nxt = _next_in_face(k)
         a10n = a10[nxt] * s0[nxt]
-        alpha = (a00 * s0 + a11[nxt] * s0 + a10n) * (self.w_shear * s0)
-        beta = (a10n - a01 * s1) * (self.w_shear * s0)
-        Q = H
-        Q *= alpha
+        ws = self.w_shear * s0
+        alpha = (a00 * s0 + a11[nxt] * s0 + a10n) * ws
+        beta = (a10n - a01 * s1) * ws
+        np.multiply(H, alpha, out=Q)
         Hn *= beta
         Q += Hn
-        Q[:, self.edge_he] += Pe * (self.edge_w * self.edge_coef)
-        bend = sum(float(np.dot(v, v)) for v in (self.B @ x for x in Xc))
-        E = 0.5 * (float(self.edge_w @ re2) + self.w_shear * float(rc2.sum())
-                   + self.w_bending * bend)
-        return Q, E
+        return float(rc2.sum())
 
     def energy(self, Xc, planar=False):
         """Total constraint energy at ``Xc`` ((d, n) mm)."""
@@ -333,9 +363,10 @@ class PDSystem:
     def solve(self, Q, Xc):
         """Global step: argmin_x sum_r w_r |A_r x - p_r|^2 + w_b |B x|^2 + eps |x - X|^2.
 
-        Q : (d, 3m) from :meth:`project`; Xc : (d, n). Returns (d, n).
+        Q : pair from :meth:`project`; Xc : (d, n). Returns (d, n).
         """
-        rhs = np.stack([self.DT @ q for q in Q])
+        Qs, Pe = Q
+        rhs = np.stack([self.DT @ q + self.AeT @ p for q, p in zip(Qs, Pe)])
         rhs += self.eps * Xc
         # (d, n) C-order is (n, d) Fortran order, which SuperLU takes without a copy.
         return np.ascontiguousarray(self.lu.solve(rhs.T).T)

@@ -161,7 +161,9 @@ def test_fused_local_step_equals_explicit_rows(planar):
                         *project_corners(Y[:, e:e + c], Y[:, e + c:], S.cos0, S.sin0, planar)], 1)
     w = np.concatenate([S.edge_w, np.full(2 * c, S.w_shear)])
     rhs = np.stack([S.A.T @ (w * p) for p in P])
-    np.testing.assert_allclose(np.stack([S.DT @ q for q in Q]), rhs, atol=1e-10)
+    Qs, Pe = Q
+    fused = np.stack([S.DT @ q + S.AeT @ p for q, p in zip(Qs, Pe)])
+    np.testing.assert_allclose(fused, rhs, atol=1e-10)
     assert E == pytest.approx(sum(S.energy_terms(X, planar).values()), rel=1e-9)
 
 

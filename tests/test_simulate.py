@@ -28,7 +28,7 @@ def returns_to_target(mesh, rel_tol=0.01, **simulate_kwargs):
 
 def test_dome_returns_to_target():
     flat, sim, rel = returns_to_target(reference_mesh("dome"), rel_tol=0.01)
-    assert isinstance(sim, SimResult)
+    assert isinstance(sim, SimResult) and sim.converged
     assert sim.vertices.shape == flat.xy.shape[:1] + (3,)
     assert sim.max_displacement_mm >= sim.mean_displacement_mm > 0
     assert not sim.mirrored
@@ -60,9 +60,10 @@ def test_sheet_that_pops_down_is_mirrored():
     mesh = reference_mesh("dome")
     flat = flatten(mesh)
     up = simulate(mesh, flat)
-    down = simulate(mesh, flat, pop=-0.05)
+    down = simulate(mesh, flat, pop=-0.15)
     assert down.mirrored and not up.mirrored
-    assert down.mean_displacement_mm == pytest.approx(up.mean_displacement_mm, rel=0.1, abs=0.05)
+    # every constraint is reflection-invariant: the same shape, mirrored
+    assert down.mean_displacement_mm == pytest.approx(up.mean_displacement_mm, rel=1e-6)
 
 
 def test_clamping_sigma_to_printable_range_is_counted_and_costs_accuracy():
@@ -89,10 +90,11 @@ def test_align_undoes_a_rigid_motion():
 
 
 # Shapes with lobes and long flanks: the bending toward flat (w_bending 0.025,
-# a sheet ~0.6-0.8 mm thick at these edge lengths) partly unrolls their
-# nearly developable rims, which no layout can prevent: measured 0.6-1.6 % of
-# the diameter for the two-peak shape and 1.5-2.5 % for the starfish-like one,
-# depending on mesh resolution (the paper's printed parts: 1.4-2.2 %).
+# like a sheet ~0.6-0.8 mm thick at these edge lengths) partly unrolls their
+# nearly developable rims and lobes. At equilibrium (run to convergence: cut
+# short, the sheet is still closer to the target, 0.6-0.7 %) measured 1.1 %
+# of the diameter for the two-peak shape and 1.5 % for the starfish-like one
+# (the paper's printed parts: 1.4-2.2 %).
 LOBED = {
     "two_peaks": lambda: isoline_mesh(two_peaks(), spacing_mm=2.0, l_u=2.0),
     "starfish_like": lambda: isoline_mesh(starfish_like(neck=0.7, height_mm=18.0),
@@ -100,13 +102,17 @@ LOBED = {
 }
 
 
+EQUILIBRIUM = {"iterations": 1000, "tol": 1e-5}
+
+
 @pytest.mark.parametrize("name", sorted(LOBED))
 def test_lobed_shapes_return_close_to_target(name):
-    returns_to_target(LOBED[name](), rel_tol=0.03)
+    _, sim, _ = returns_to_target(LOBED[name](), rel_tol=0.03, **EQUILIBRIUM)
+    assert sim.converged
 
 
-@pytest.mark.xfail(reason="rims of lobed shapes unroll under bending toward flat: "
-                          "1-2.5 % of the diameter, see LOBED", strict=False)
+@pytest.mark.xfail(reason="lobes unroll under bending toward flat: 1.1-1.5 % of the "
+                          "diameter at equilibrium, see LOBED", strict=True)
 @pytest.mark.parametrize("name", sorted(LOBED))
 def test_lobed_shapes_return_within_one_percent(name):
-    returns_to_target(LOBED[name](), rel_tol=0.01)
+    returns_to_target(LOBED[name](), rel_tol=0.01, **EQUILIBRIUM)
