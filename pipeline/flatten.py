@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import edge_index, edge_lengths, signed_areas_2d
-from pipeline.pd import EdgeTargets, PDSystem, minimize, topology
+from pipeline.constraints import topology
+from pipeline.pd import EdgeTargets, PDSystem, minimize
 
 DEFAULT_WEIGHTS = {"bridge": 1.0, "printing": 1.0, "bending": 0.025, "shear": 0.25,
                    "flattening": 0.3, "stretching": 1.0, "spreading": 0.5}

@@ -19,7 +19,8 @@ from scipy.spatial import cKDTree
 
 from pipeline.flatten import DEFAULT_WEIGHTS, _printing_mask
 from pipeline.geometry import edge_lengths
-from pipeline.pd import EdgeTargets, PDSystem, minimize, topology
+from pipeline.constraints import topology
+from pipeline.pd import EdgeTargets, PDSystem, minimize
 
 
 @dataclass

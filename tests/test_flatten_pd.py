@@ -1,11 +1,13 @@
-"""Projective-dynamics machinery (pipeline.pd): projections, hinge rows, energy descent."""
+"""Projective-dynamics machinery (pipeline.constraints, pipeline.pd): projections,
+hinge rows, energy descent."""
 
 import numpy as np
 import pytest
 
 from pipeline.geometry import edge_lengths
-from pipeline.pd import (EdgeTargets, PDSystem, corner_coefficients, face_geometry,
-                         hinge_weights, minimize, project_corners, project_edges, topology)
+from pipeline.constraints import (corner_coefficients, face_geometry, hinge_weights,
+                                  project_corners, project_edges, topology)
+from pipeline.pd import EdgeTargets, PDSystem, minimize
 
 from meshes import reference_mesh, spherical_cap
 
