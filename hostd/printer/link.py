@@ -193,7 +193,11 @@ class Printer:
     def _emit(self, kind, **data):
         event = Event(kind, data)
         if self.on_event is not None:
-            self.on_event(event)
+            try:
+                self.on_event(event)
+            except Exception:
+                # The listener's bug must not stop the print: report it and carry on.
+                traceback.print_exc()
         for events in self._subscribers:
             try:
                 events.put_nowait(event)

@@ -29,7 +29,8 @@ ECHO = "echo"
 OTHER = "other"
 
 _TEMP_RE = re.compile(r"(?<![A-Za-z@])([TBC]\d*)\s*:\s*(-?\d+(?:\.\d*)?)\s*(?:/\s*(-?\d+(?:\.\d*)?))?")
-_RESEND_RE = re.compile(r"^(?:resend|rs)[:\s]\s*N?\s*:?\s*(\d+)", re.IGNORECASE)
+# "Resend:" may follow line noise; the short "rs" form only counts at the start.
+_RESEND_RE = re.compile(r"(?:resend:|^rs[:\s])\s*N?\s*:?\s*(\d+)", re.IGNORECASE)
 _OK_FIELD_RE = re.compile(r"\b([NPB])(\d+)\b")
 _CAP_RE = re.compile(r"^Cap:([A-Z0-9_]+):\s*([01])")
 
@@ -143,7 +144,7 @@ def parse_reply(raw):
                 else:
                     reply.buffer_free = int(value)
         return reply
-    match = _RESEND_RE.match(text)
+    match = _RESEND_RE.search(text)
     if match:
         return Reply(RESEND, text, line=int(match.group(1)))
     if low.startswith("error"):

@@ -1,0 +1,71 @@
+"""Port kinds: ``sim://`` in process, and ``socket://`` to a ser2net-style bridge."""
+
+import os
+import select
+import socket
+import threading
+
+import serial
+
+from hostd.printer import LinkSettings, Printer
+from hostd.printer.sim import Simulator
+from hostd.printer.simconfig import SimConfig
+
+from printer_helpers import job_commands, moves
+
+
+def test_sim_url_runs_the_simulator_in_process():
+    lines = moves(200)
+    with Printer("sim://?advanced_ok=1&time_scale=0&planner=8", LinkSettings(baud=250000)) as printer:
+        printer.connect()
+        assert printer.simulator.config.planner == 8
+        assert printer.capabilities["ADVANCED_OK"]
+        printer.start(lines)
+        assert printer.wait(30)["result"] == "done"
+        assert job_commands(printer.simulator) == lines
+
+
+def _bridge(listener, device_path, stop):
+    """Accept one TCP client and shuttle bytes to and from the serial device (ser2net)."""
+    client, _ = listener.accept()
+    device = serial.Serial(device_path, 250000, timeout=0)
+    fd = device.fileno()
+    try:
+        while not stop.is_set():
+            ready, _, _ = select.select([client, fd], [], [], 0.05)
+            if client in ready:
+                data = client.recv(4096)
+                if not data:
+                    break
+                device.write(data)
+            if fd in ready:
+                data = os.read(fd, 4096)
+                if data:
+                    client.sendall(data)
+    finally:
+        device.close()
+        client.close()
+
+
+def test_socket_url_through_a_network_serial_bridge():
+    sim = Simulator(SimConfig(advanced_ok=True, time_scale=0), baud=250000)
+    path = sim.start()
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    stop = threading.Event()
+    bridge = threading.Thread(target=_bridge, args=(listener, path, stop), daemon=True)
+    bridge.start()
+    lines = moves(300)
+    try:
+        url = "socket://127.0.0.1:%d" % listener.getsockname()[1]
+        with Printer(url, LinkSettings(baud=250000)) as printer:
+            printer.connect()
+            printer.start(lines)
+            assert printer.wait(30)["result"] == "done"
+        assert job_commands(sim) == lines
+    finally:
+        stop.set()
+        bridge.join(5)
+        listener.close()
+        sim.stop()
