@@ -11,10 +11,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# Bounds of the hinge rows: cot(1 degree), and a fraction of the median face area.
+_MAX_COT = 57.3
+_MIN_AREA_FRACTION = 0.05
+
 # Rest triangles are kept at least this fat (area / sum of squared sides) so
 # that inconsistent rest lengths (a bridge strained past the triangle
 # inequality) give bounded cotangents instead of an ill-conditioned system.
 _MIN_FATNESS = 1e-4
+
+
+def row_lengths(rest_len, floor_fraction=0.1):
+    """Lengths that scale constraint rows (1/sqrt(l)): (e,) mm.
+
+    Rest lengths, but never below ``floor_fraction`` of the median: a
+    near-zero edge (a mesher's sliver) would otherwise get a row weight that
+    wrecks the conditioning of the whole system.
+    """
+    rest_len = np.asarray(rest_len, dtype=float)
+    return np.maximum(rest_len, floor_fraction * float(np.median(rest_len)))
 
 
 @dataclass
@@ -134,6 +149,11 @@ def hinge_weights(top, edge_len):
     :attr:`Topology.hinges`; built from edge lengths so it needs no embedding.
     """
     area, cot, _ = face_geometry(top, edge_len)
+    # Slivers (real-terrain meshes have corners below 0.1 degree) would give
+    # rows thousands of times the typical one: bound the cotangents and the
+    # area a hinge may be divided by.
+    cot = np.clip(cot, -_MAX_COT, _MAX_COT)
+    area = np.maximum(area, _MIN_AREA_FRACTION * float(np.median(area)))
     f0, f1 = top.hinge_faces[:, 0], top.hinge_faces[:, 1]
     v0, v1 = top.hinges[:, 0], top.hinges[:, 1]
     c0_f0 = _corner_value(top.faces, cot, f0, v0)

@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from pipeline.constraints import (corner_coefficients, face_geometry, hinge_weights,
-                                  project_corners, project_edges)
+                                  project_corners, project_edges, row_lengths)
 
 # Faces x 3 per block of the local step: big enough to amortise numpy's call
 # overhead, small enough for its temporaries to stay in cache.
@@ -98,7 +98,7 @@ class PDSystem:
         first[he_edge[::-1]] = he[::-1]
         self.edge_he = first
         self.edge_sign = np.where(a[first] == top.edges[:, 0], 1.0, -1.0)
-        self.edge_scale = 1.0 / np.sqrt(edge.rest)
+        self.edge_scale = 1.0 / np.sqrt(row_lengths(edge.rest))
         self.edge_coef = self.edge_sign * self.edge_scale
         self.edge_lo = edge.lo * self.edge_scale
         self.edge_hi = edge.hi * self.edge_scale
@@ -108,7 +108,7 @@ class PDSystem:
                                  (np.concatenate([ei, ei]), top.edges.T.ravel())), shape=(e, n))
         self.AeT = self.Ae.T.tocsr()
         # Shear rows: corner k has U0 = s_k h_k and U1 = -s_{k+2} h_{k+2}, s = 1/sqrt(rest length).
-        self.he_scale = 1.0 / np.sqrt(rest_len[he_edge])
+        self.he_scale = 1.0 / np.sqrt(row_lengths(rest_len)[he_edge])
         corner = np.arange(3 * m).reshape(m, 3)
         self.he_scale_next2 = self.he_scale[corner[:, [2, 0, 1]].ravel()]
         self.w_shear = float(w_shear)
