@@ -69,3 +69,16 @@ def test_socket_url_through_a_network_serial_bridge():
         bridge.join(5)
         listener.close()
         sim.stop()
+
+
+def test_start_line_continues_an_interrupted_job_and_close_ends_the_job():
+    lines = moves(300)
+    with Printer("sim://?advanced_ok=1&time_scale=0", LinkSettings(baud=250000)) as printer:
+        printer.connect()
+        job = printer.start(lines, start_line=101)
+        assert job.total == 200
+        assert printer.wait(30)["result"] == "done"
+        assert job_commands(printer.simulator) == lines[100:]
+        assert job.last_confirmed_line == 300
+        slow = printer.start(["G1 X10 F60", "G1 X0 F60"])
+    assert slow.wait(5) and slow.result == "interrupted"   # close() ends it, never hangs

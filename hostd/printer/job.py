@@ -21,8 +21,21 @@ def _numbered(lines):
             yield number, command
 
 
-def open_source(source):
-    """Return (iterator of (file line, command), total commands or None, name)."""
+def open_source(source, start_line=1):
+    """Return (iterator of (file line, command), total commands or None, name).
+
+    Commands on file lines before ``start_line`` are left out (and not counted).
+    """
+    if start_line > 1:
+        lines, _, name = open_source(source)
+        skipped = ((n, c) for n, c in lines if n >= start_line)
+        total = None
+        if isinstance(source, (list, tuple)):
+            total = sum(1 for n, _ in _numbered(source) if n >= start_line)
+        elif isinstance(source, (str, os.PathLike)):
+            with open(os.fspath(source), encoding="ascii", errors="replace") as handle:
+                total = sum(1 for n, _ in _numbered(handle) if n >= start_line)
+        return skipped, total, "%s from line %d" % (name, start_line)
     if isinstance(source, (str, os.PathLike)):
         path = os.fspath(source)
         try:
@@ -49,8 +62,8 @@ class Job:
     the firmware acknowledged -- where an interrupted print can be resumed from.
     """
 
-    def __init__(self, source, job_id=None):
-        self._lines, self.total, self.name = open_source(source)
+    def __init__(self, source, job_id=None, start_line=1):
+        self._lines, self.total, self.name = open_source(source, start_line)
         self.id = job_id or uuid.uuid4().hex[:12]
         self.phase = PRINTING
         self.result = None

@@ -108,9 +108,14 @@ class Printer:
                                + self.settings.handshake_timeout_s * (self.settings.handshake_attempts + 3))
         return self._call("connect", timeout_s=budget)
 
-    def start(self, source, job_id=None):
-        """Start streaming a file path, or an iterable of G-code lines; returns the Job."""
-        job = Job(source, job_id)
+    def start(self, source, job_id=None, start_line=1):
+        """Start streaming a file path, or an iterable of G-code lines; returns the Job.
+
+        ``start_line`` (1-based, in the file) skips everything before it: with an
+        interrupted job's ``last_confirmed_line + 1`` it continues where the firmware
+        stopped -- after the caller has re-homed/re-heated as its profile requires.
+        """
+        job = Job(source, job_id, start_line)
         return self._call("start", job)
 
     def pause(self):
@@ -291,6 +296,9 @@ class Printer:
         if kind == "call":
             _, name, args, future = item
             if name == "close":
+                self._finish_job(INTERRUPTED, "link closed")
+                self._drop_port()
+                self._set_state(DISCONNECTED)
                 if future:
                     future.set_result(None)
                 return "close"
