@@ -13,7 +13,6 @@ Exit status 0 only when the result is ``done``.
 
 import json
 import sys
-import time
 
 from hostd.printer import LinkSettings, Printer, PrinterError
 

@@ -17,10 +17,10 @@ queues from :meth:`Printer.subscribe`): :class:`Event` with ``kind`` in ``state`
 """
 
 import queue
+from collections import deque
 import threading
 import time
 import traceback
-from collections import OrderedDict, deque
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 
@@ -28,6 +28,7 @@ import serial
 
 from hostd.printer import protocol
 from hostd.printer.errors import PrinterError
+from hostd.printer.flow import LineFlow, Sent
 from hostd.printer.handshake import handshake
 from hostd.printer.job import CANCELLED, CANCELLING, DONE, ERROR, INTERRUPTED, Job
 from hostd.printer.job import PAUSED, PAUSING, PRINTING
@@ -45,16 +46,6 @@ class Event:
     kind: str
     data: dict = field(default_factory=dict)
     time: float = field(default_factory=time.time)
-
-
-@dataclass
-class Sent:
-    """One numbered line: its wire bytes and where it came from."""
-
-    n: int
-    data: bytes
-    command: str
-    origin: tuple    # ("job", file line) / ("script", name) / ("poll",) / ("probe",) / ("user",)
 
 
 class Printer:
@@ -90,7 +81,7 @@ class Printer:
         self._generation = 0
         self._thread = None
         self._closing = False
-        self._byte_s = 10.0 / self.settings.baud
+        self._flow = LineFlow(self.settings, self.stats, 10.0 / self.settings.baud)
         self._reset_stream()
 
     # -- public API (any thread) ---------------------------------------------------------
@@ -220,19 +211,10 @@ class Printer:
 
     def _reset_stream(self):
         """Forget the line-level state (new connection: the firmware starts at N0)."""
-        self._history = OrderedDict()
-        self._next_n = 1
-        self._cursor = 1
-        self._fifo = deque()
-        self._fifo_bytes = 0
-        self._limbo = []
-        self._error_acks = 0
-        self._resync_target = None
-        self._resync_until = 0.0
+        self._flow.reset()
         self._priority = deque()
         self._last_rx = time.monotonic()
         self._timeouts = 0
-        self._capacity = 1
         self._next_poll = 0.0
         self._last_progress = 0.0
 
@@ -283,10 +265,10 @@ class Printer:
         if reconnect_at is not None:
             deadlines.append(reconnect_at)
         if self._serial is not None:
-            if self._fifo:
+            if self._flow.awaiting():
                 deadlines.append(self._last_rx + self.settings.ok_timeout_s)
-            if self._resync_until > now:
-                deadlines.append(self._resync_until)
+            if self._flow.resync_until > now:
+                deadlines.append(self._flow.resync_until)
             if self._next_poll and not self.capabilities.get("AUTOREPORT_TEMP"):
                 deadlines.append(self._next_poll)
         return max(0.0, min(deadlines) - now)
@@ -365,14 +347,15 @@ class Printer:
             raise
         self.capabilities = result.capabilities
         self.firmware_info = result.firmware
-        self._next_n = self._cursor = result.next_n
-        for n, data, command in result.sent:
-            self._history[n] = Sent(n, data, command, ("host",))
         advanced = self.settings.send_ahead and self.capabilities.get("ADVANCED_OK")
         if self.settings.max_in_flight_lines:
-            self._capacity = self.settings.max_in_flight_lines if advanced else 1
+            capacity = self.settings.max_in_flight_lines if advanced else 1
         else:
-            self._capacity = (result.max_buffer_free + 1) if advanced and result.max_buffer_free else 1
+            # An idle Marlin reports B = BUFSIZE - 1 (the answered line still holds a slot).
+            capacity = (result.max_buffer_free + 1) if advanced and result.max_buffer_free else 1
+        self._flow.reset(result.next_n, capacity)
+        for n, data, command in result.sent:
+            self._flow.remember(Sent(n, data, command, ("host",)))
         self._last_rx = time.monotonic()
         self._next_poll = time.monotonic()
         self.last_error = None
@@ -453,12 +436,7 @@ class Printer:
     def _abandon_stream(self):
         """Stop waiting for answers and drop anything queued (the firmware is halted)."""
         self._priority.clear()
-        self._fifo.clear()
-        self._fifo_bytes = 0
-        self._limbo = []
-        self._error_acks = 0
-        self._cursor = self._next_n
-        self._resync_until = 0.0
+        self._flow.abandon()
 
     def _queue_script(self, name, text):
         for command in script_lines(text):
@@ -478,59 +456,34 @@ class Printer:
             self.temperatures.update(reply.temps, time.time())
             self._emit("temperature", temps=self.temperatures.current())
         if kind == protocol.OK:
-            self._on_ok(reply)
+            confirmed = self._flow.on_ok(reply.line)
+            if confirmed is not None:
+                self._timeouts = 0
+                for sent in confirmed:
+                    self._confirm(sent)
         elif kind == protocol.RESEND:
-            self._on_resend(reply.line, at)
+            try:
+                accepted, honoured = self._flow.on_resend(reply.line, at)
+            except PrinterError as exc:
+                self._fatal(exc.code, exc.message)
+                return
+            for sent in accepted:
+                self._confirm(sent)
+            if honoured:
+                if self.job is not None and self.job.result is None:
+                    self.job.resends += 1
+                self._emit("resend", line=reply.line)
         elif kind == protocol.ERROR:
             if protocol.is_resend_error(reply.text):
-                if self._resync_until > at:
-                    self._resync_until = at + self._quiet_s()
+                self._flow.on_line_error(at)
             else:
                 self._on_firmware_error(reply.text)
         elif kind == protocol.START:
             if self._state not in (CONNECTING, ERROR_STATE):
                 raise _PortLost("printer reset unexpectedly (got 'start')")
-        elif kind in (protocol.ECHO, protocol.OTHER, protocol.BUSY, protocol.FIRMWARE):
-            if kind != protocol.BUSY:
-                self._emit("log", text=reply.text)
-
-    def _on_ok(self, reply):
-        self.stats["oks"] += 1
-        if self._error_acks:
-            self._error_acks -= 1   # the ok that follows a Resend: nothing was executed
-            return
-        self._timeouts = 0
-        popped = None
-        if reply.line is not None:
-            if any(s.n == reply.line for s in self._fifo):
-                # ADVANCED_OK names the line: anything older whose ok got lost is done too.
-                while self._fifo:
-                    popped = self._pop()
-                    self._confirm(popped)
-                    if popped.n == reply.line:
-                        break
-            elif any(s.n == reply.line for s in self._limbo):
-                popped = next(s for s in self._limbo if s.n == reply.line)
-                self._confirm(popped)
-                self._limbo.remove(popped)
-            # else: an answer for a line we no longer wait for (already resolved).
-        elif self._fifo:
-            popped = self._pop()
-            self._confirm(popped)
-        elif self._limbo:
-            popped = self._limbo.pop(0)   # a late answer after a timeout
-            self._confirm(popped)
-        if popped is not None and self._limbo:
-            # The firmware took line n only after n-1: everything older was accepted.
-            for sent in [s for s in self._limbo if s.n < popped.n]:
-                self._confirm(sent)
-            self._limbo = [s for s in self._limbo if s.n > popped.n]
-        self._after_progress()
-
-    def _pop(self):
-        sent = self._fifo.popleft()
-        self._fifo_bytes -= len(sent.data)
-        return sent
+        elif kind in (protocol.ECHO, protocol.OTHER, protocol.FIRMWARE):
+            self._emit("log", text=reply.text)
+        # BUSY: a sign of life only (it resets the answer timeout above).
 
     def _confirm(self, sent):
         job = self.job
@@ -538,35 +491,6 @@ class Printer:
             job.confirmed += 1
             job.last_confirmed_line = sent.origin[1]
             job.bytes_confirmed += len(sent.data)
-
-    def _on_resend(self, line, at):
-        self._error_acks += 1
-        if line not in self._history and line != self._next_n:
-            self._fatal("resend", "firmware asked for line %d which is no longer in history" % line)
-            return
-        # Lines before `line` were accepted (they will still get their own ok); the rest
-        # in flight are dropped by the firmware or will each be rejected.
-        for sent in [s for s in self._limbo if s.n < line]:
-            self._confirm(sent)
-        self._limbo = []
-        kept = deque(s for s in self._fifo if s.n < line)
-        self._fifo_bytes = sum(len(s.data) for s in kept)
-        doomed = len(self._fifo) - len(kept)
-        self._fifo = kept
-        if self._resync_target == line and at < self._resync_until:
-            self._resync_until = at + self._quiet_s()   # another echo of the same request
-            return
-        self.stats["resends"] += 1
-        if self.job is not None and self.job.result is None:
-            self.job.resends += 1
-        self._cursor = line
-        self._resync_target = line
-        # Only wait for stragglers when more than the offending line was in flight.
-        self._resync_until = at + self._quiet_s() if doomed > 1 else at
-        self._emit("resend", line=line)
-
-    def _quiet_s(self):
-        return max(self.settings.resend_quiet_s, 3 * self.settings.rx_buffer_bytes * self._byte_s)
 
     def _on_firmware_error(self, text):
         self._emit("firmware_error", message=text)
@@ -592,23 +516,20 @@ class Printer:
         if self._serial is None:
             return
         now = time.monotonic()
-        if (self._fifo or self._error_acks) and now - self._last_rx >= self.settings.ok_timeout_s:
+        if self._flow.awaiting() and now - self._last_rx >= self.settings.ok_timeout_s:
             if self._state == ERROR_STATE:
                 self._abandon_stream()   # best-effort error script: no recovery games
                 return
             self._timeouts += 1
             self.stats["timeouts"] += 1
-            self._emit("timeout", count=self._timeouts, in_flight=len(self._fifo))
+            self._emit("timeout", count=self._timeouts, in_flight=len(self._flow.fifo))
             if self._timeouts > self.settings.max_timeouts:
                 self._fatal("timeout", "printer not responding: no answer for %.1f s, %d recoveries failed"
                             % (self.settings.ok_timeout_s, self._timeouts - 1))
                 return
             # OctoPrint's recovery: whatever was in flight lost its answer; probe with a
             # numbered M105 -- accepted means those lines got through, Resend means not.
-            self._limbo += list(self._fifo)
-            self._fifo.clear()
-            self._fifo_bytes = 0
-            self._error_acks = 0
+            self._flow.expire()
             self._priority.appendleft(("M105", ("probe",)))
             self._last_rx = now
         if (self._next_poll and now >= self._next_poll and self._state != ERROR_STATE
@@ -619,8 +540,9 @@ class Printer:
 
     def _next_line(self):
         """(Sent, is_new) to transmit next, or None."""
-        if self._cursor < self._next_n:
-            return self._history[self._cursor], False
+        flow = self._flow
+        if flow.replaying():
+            return flow.replay_line(), False
         if self._priority:
             command, origin = self._priority[0]
         else:
@@ -631,66 +553,45 @@ class Printer:
             if item is None:
                 return None
             command, origin = item[1], ("job", item[0])
-        return Sent(self._next_n, protocol.frame(self._next_n, command), command, origin), True
+        return flow.new_line(command, origin), True
 
     def _pump(self):
         """Send as much as flow control allows."""
-        if self._serial is None or time.monotonic() < self._resync_until:
-            self._after_progress()
-            return
-        if self._state == ERROR_STATE and not self._priority and self._cursor >= self._next_n:
-            return
-        while True:
-            if self._fifo and (len(self._fifo) >= self._capacity or self._error_acks):
-                break
-            nxt = self._next_line()
-            if nxt is None:
-                break
-            sent, new = nxt
-            if self._fifo and self._fifo_bytes + len(sent.data) > self.settings.rx_buffer_bytes:
-                break
-            if new:
-                if self._priority:
-                    self._priority.popleft()
-                else:
-                    self.job.take()
-                self._history[sent.n] = sent
-                if len(self._history) > self.settings.history_lines:
-                    self._history.popitem(last=False)
-                self._next_n += 1
-            else:
-                self.stats["lines_resent"] += 1
-            self._cursor = sent.n + 1
-            self._transmit(sent)
+        flow = self._flow
+        if self._serial is not None:
+            now = time.monotonic()
+            while not flow.window_full(now):
+                nxt = self._next_line()
+                if nxt is None:
+                    break
+                sent, new = nxt
+                if not flow.fits(sent):
+                    break
+                if new:
+                    if self._priority:
+                        self._priority.popleft()
+                    else:
+                        self.job.take()
+                self._transmit(sent, new)
         self._after_progress()
 
-    def _transmit(self, sent):
+    def _transmit(self, sent, new):
+        if not self._flow.fifo:
+            self._last_rx = time.monotonic()   # the answer timeout starts with the first line
+        self._flow.commit(sent, new)
         with self._write_lock:
             try:
                 self._serial.write(sent.data)
             except (serial.SerialException, OSError) as exc:
                 raise _PortLost("write failed: %s" % exc) from exc
-        self._fifo.append(sent)
-        self._fifo_bytes += len(sent.data)
-        stats = self.stats
-        stats["lines_sent"] += 1
-        stats["bytes_sent"] += len(sent.data)
-        stats["max_in_flight_lines"] = max(stats["max_in_flight_lines"], len(self._fifo))
-        stats["max_in_flight_bytes"] = max(stats["max_in_flight_bytes"], self._fifo_bytes)
         if self.job is not None and self.job.result is None:
             self.job.bytes_sent += len(sent.data)
-        if not self._fifo or len(self._fifo) == 1:
-            self._last_rx = time.monotonic()   # the answer timeout starts with the first line
-
-    def _settled(self):
-        return (not self._fifo and not self._priority and not self._limbo
-                and self._cursor >= self._next_n and not self._error_acks)
 
     def _after_progress(self):
         """Phase changes that happen once everything sent has been answered."""
         job = self.job
         if job is not None and job.result is None:
-            settled = self._settled()
+            settled = self._flow.settled()
             if job.phase == PRINTING and settled and job.peek() is None:
                 self._finish_job(DONE)
                 self._set_state(IDLE)
@@ -701,7 +602,7 @@ class Printer:
                 self._finish_job(CANCELLED)
                 self._set_state(IDLE)
             elif job.phase == PRINTING and self._state in (PRINTING, HEATING):
-                head = self._fifo[0].command[:4] if self._fifo else ""
+                head = self._flow.head_command()[:4]
                 self._set_state(HEATING if head in _BLOCKING_HEAT else PRINTING)
             now = time.monotonic()
             if job.result is None and now - self._last_progress >= self.settings.progress_interval_s:
