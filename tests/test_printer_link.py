@@ -276,8 +276,8 @@ def test_silent_printer_stops_the_job_with_a_clear_reason():
 def test_heating_blocks_with_busy_and_reports_temperatures():
     lines = ["M104 S200", "M140 S60", "M190 S60", "M109 S200"] + moves(50)
     # Heating takes longer than the answer timeout: busy messages must count as life.
-    settings = LinkSettings(autoreport_s=1, ok_timeout_s=0.5)
-    with sim_and_printer(settings=settings, advanced_ok=True, time_scale=0.05, hotend_tau_s=6, bed_tau_s=4,
+    settings = LinkSettings(autoreport_s=1, ok_timeout_s=1.0)    # hotend: ~2 s to reach 200
+    with sim_and_printer(settings=settings, advanced_ok=True, time_scale=0.05, hotend_tau_s=8, bed_tau_s=4,
                          keepalive_s=0.2) as (sim, printer):
         states = []
         printer.on_event = lambda e: states.append(e.data["state"]) if e.kind == "state" else None
