@@ -10,8 +10,9 @@ from hostd.printer import LinkSettings, Printer
 from hostd.printer.sim import Simulator
 from hostd.printer.simconfig import SimConfig
 
-# Commands the host adds on its own (handshake, temperature polling, recovery probes).
-HOUSEKEEPING = ("M105", "M110", "M115", "M155")
+# Commands the host adds on its own (handshake, temperature polling, recovery probes,
+# M108 to break a heating wait on cancel).
+HOUSEKEEPING = ("M105", "M108", "M110", "M115", "M155")
 
 
 def moves(count, feed_mm_min=3000, step_mm=0.2):

@@ -99,3 +99,25 @@ def test_stream_to_missing_port_fails_cleanly(tmp_path):
     assert summary["result"] == "error" and "cannot open" in summary["error"]
     assert "Traceback" not in done.stderr
     assert time.monotonic() - started < 30
+
+
+def test_ctrl_c_cancels_the_stream(sim_printer, tmp_path):
+    import signal
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("\n".join(moves(2000, feed_mm_min=600)) + "\n")    # minutes of printing
+    link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "1")
+    stream = subprocess.Popen(hostd("stream", str(gcode), "--port", link, "--baud", "250000"),
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(1.2)     # connected and printing by then
+        stream.send_signal(signal.SIGINT)
+        out, err = stream.communicate(timeout=30)
+    finally:
+        if stream.poll() is None:
+            stream.kill()
+    assert stream.returncode == 1
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["result"] == "cancelled", err
+    assert 0 < summary["lines"] < 2000
+    recorded = stop(proc, record)
+    assert recorded["commands"][-1] == "M84"      # the cancel script ran to its end

@@ -304,3 +304,20 @@ def test_temperature_polling_without_autoreport_does_not_disturb_the_job():
         assert len(polls) >= 3
         assert "T" in printer.temperatures.current()
         assert job_commands(sim) == lines
+
+
+def test_cancel_while_heating_breaks_the_wait():
+    lines = ["M104 S200", "M109 S200"] + moves(100)
+    # Heating would take ~100 s: the cancel must not wait for it.
+    with sim_and_printer(advanced_ok=True, time_scale=1.0, hotend_tau_s=20) as (sim, printer):
+        printer.start(lines)
+        wait_for(lambda: printer.state == "heating", what="heating")
+        started = time.monotonic()
+        printer.cancel()
+        result = printer.wait(20)
+        assert result["result"] == "cancelled"
+        assert time.monotonic() - started < 10
+        # Lines already in the firmware's queue still run (as on a real printer).
+        assert job_commands(sim) == lines[:result["sent"]] + script(DEFAULT_CANCEL_GCODE)
+        wait_for(lambda: printer.temperatures.current().get("T", {}).get("target") == 0,
+                 what="heater off reported")

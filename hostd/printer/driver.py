@@ -307,6 +307,15 @@ class Driver:
         if job.phase != CANCELLING:
             job.phase = CANCELLING
             self._queue_script("cancel", self.settings.cancel_gcode)
+            heating = any(s.command[:4] in _BLOCKING_HEAT for s in self._flow.fifo)
+            if heating and self.capabilities.get("EMERGENCY_PARSER") and self._serial is not None:
+                # M109/M190 would hold the cancel script back until the target is reached;
+                # M108 (emergency parser) ends the wait at once, as OctoPrint does.
+                with self._write_lock:
+                    try:
+                        self._serial.write(b"M108\n")
+                    except (serial.SerialException, OSError) as exc:
+                        raise _PortLost("write failed: %s" % exc) from exc
         return job.phase
 
     def _do_send(self, command):
