@@ -50,7 +50,7 @@ def stop(proc, record):
 
 
 def test_stream_through_sim_printer_prints_the_json_line(sim_printer, tmp_path):
-    lines = ["G28", "M104 S200", "M109 S200", "G92 E0"] + moves(1500)
+    lines = ["G28", "M104 S200", "M109 S200", "G92 E0"] + moves(800)
     gcode = tmp_path / "part.gcode"
     gcode.write_text("; generated\n" + "\n".join(line + " ; comment" for line in lines) + "\n")
     link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "0",

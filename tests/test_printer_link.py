@@ -19,6 +19,12 @@ from hostd.printer.settings import DEFAULT_CANCEL_GCODE, DEFAULT_PAUSE_GCODE, DE
 from printer_helpers import job_commands, moves, script, sim_and_printer
 
 
+def report(record_property, name, value):
+    """A measured value: in the junit XML and, with ``-rA``, in the captured output."""
+    record_property(name, value)
+    print("measured %s = %s" % (name, value))
+
+
 def wait_for(predicate, timeout_s=10.0, what="condition"):
     deadline = time.monotonic() + timeout_s
     while not predicate():
@@ -41,8 +47,8 @@ def test_exactly_once_with_corruption_and_lost_oks_send_ahead(record_property):
         assert stats["corrupted"] >= 15 and stats["lost_oks"] >= 10
         assert job_commands(sim) == lines
         assert result["confirmed"] == 3000 and result["last_confirmed_line"] == 3000
-        record_property("resends", printer.stats["resends"])
-        record_property("seconds", result["seconds"])
+        report(record_property, "resends", printer.stats["resends"])
+        report(record_property, "seconds", result["seconds"])
 
 
 def test_exactly_once_ping_pong_recovers_lost_oks_by_timeout(record_property):
@@ -56,7 +62,7 @@ def test_exactly_once_ping_pong_recovers_lost_oks_by_timeout(record_property):
         assert sim.stats["lost_oks"] >= 1 and sim.stats["corrupted"] >= 3
         assert printer.stats["timeouts"] >= sim.stats["lost_oks"]
         assert job_commands(sim) == lines
-        record_property("timeouts", printer.stats["timeouts"])
+        report(record_property, "timeouts", printer.stats["timeouts"])
 
 
 # -- flow control ------------------------------------------------------------------------
@@ -77,7 +83,7 @@ def test_send_ahead_never_exceeds_firmware_buffers(record_property):
         assert printer.stats["max_in_flight_lines"] > 1    # send-ahead was used
         assert printer.stats["max_in_flight_bytes"] <= 95
         assert job_commands(sim) == lines
-        record_property("max_in_flight_lines", printer.stats["max_in_flight_lines"])
+        report(record_property, "max_in_flight_lines", printer.stats["max_in_flight_lines"])
 
 
 def test_send_ahead_respects_receive_buffer_bytes():
@@ -152,7 +158,7 @@ def test_emergency_stop_reaches_firmware_quickly_with_full_queue(record_property
         sent_at = printer.estop()
         wait_for(lambda: sim.stats["emergency_stop_at"] is not None, timeout_s=5, what="M112")
         latency_s = sim.stats["emergency_stop_at"] - sent_at
-        record_property("estop_latency_ms", round(latency_s * 1000, 2))
+        report(record_property, "estop_latency_ms", round(latency_s * 1000, 2))
         assert latency_s < 0.5
         assert sim.firmware.halted
         wait_for(lambda: printer.state == "error", what="error state")
