@@ -61,6 +61,7 @@ class Driver:
         self._generation = 0
         self._thread = None
         self._closing = False
+        self._reconnect_at = None
         self._flow = LineFlow(self.settings, self.stats, 10.0 / self.settings.baud)
         self._reset_stream()
 
@@ -111,22 +112,15 @@ class Driver:
     # -- driver thread -------------------------------------------------------------------
 
     def _run(self):
-        reconnect_at = None
         while True:
             now = time.monotonic()
-            if reconnect_at is not None and now >= reconnect_at:
-                reconnect_at = None
-                try:
-                    self._connect()
-                    self._emit("connected", reconnected=True)
-                except PrinterError as exc:
-                    self.last_error = str(exc)
-                    reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
             try:
-                item = self._inbox.get(timeout=self._wait_s(now, reconnect_at))
+                item = self._inbox.get(timeout=self._wait_s(now))
             except queue.Empty:
                 item = None
             try:
+                if self._reconnect_at is not None and time.monotonic() >= self._reconnect_at:
+                    self._reconnect()
                 if item is not None:
                     if self._dispatch(item) == "close":
                         return
@@ -143,17 +137,30 @@ class Driver:
             except _PortLost as lost:
                 self._lost(str(lost))
                 if self.settings.reconnect and not self._closing:
-                    reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
+                    self._reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
             except Exception as exc:
                 # A bug must not kill the thread that owns the printer: stop the job
                 # loudly, keep serving (estop, connect) and report it.
                 traceback.print_exc()
                 self._fatal("internal", "driver error: %r" % exc)
 
-    def _wait_s(self, now, reconnect_at):
+    def _reconnect(self):
+        """Try the lost port again (it may have come back under the same name)."""
+        self._reconnect_at = None
+        if self._state != DISCONNECTED:
+            return
+        try:
+            self._connect()
+        except PrinterError as exc:
+            self.last_error = str(exc)
+            self._reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
+            return
+        self._emit("connected", reconnected=True)
+
+    def _wait_s(self, now):
         deadlines = [now + 0.5]
-        if reconnect_at is not None:
-            deadlines.append(reconnect_at)
+        if self._reconnect_at is not None:
+            deadlines.append(self._reconnect_at)
         if self._serial is not None:
             if self._flow.awaiting():
                 deadlines.append(self._last_rx + self.settings.ok_timeout_s)
@@ -213,6 +220,7 @@ class Driver:
             # A board resets when its port is opened; closing and reopening within a
             # blink may not register as a new open (a pty certainly does not).
             time.sleep(self.settings.reopen_delay_s)
+        self._reconnect_at = None
         self._set_state(CONNECTING)
         self._reset_stream()
         deadline = time.monotonic() + self.settings.open_timeout_s

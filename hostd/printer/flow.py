@@ -51,6 +51,7 @@ class LineFlow:
         self.error_acks = 0           # oks still due for resend requests
         self.resync_target = None
         self.resync_until = 0.0
+        self.last_confirmed_n = -1    # highest line the firmware answered with a real ok
 
     # -- state ---------------------------------------------------------------------------
 
@@ -150,6 +151,8 @@ class LineFlow:
             # The firmware took line n only after n-1: everything older was accepted.
             confirmed += [s for s in self.limbo if s.n < answered.n]
             self.limbo = [s for s in self.limbo if s.n > answered.n]
+        if confirmed:
+            self.last_confirmed_n = max(self.last_confirmed_n, max(s.n for s in confirmed))
         return confirmed
 
     def on_resend(self, line, now):
@@ -157,6 +160,11 @@ class LineFlow:
         self.error_acks += 1
         if line not in self.history and line != self.next_n:
             raise PrinterError("resend", "firmware asked for line %d which is no longer in history" % line)
+        if line <= self.last_confirmed_n:
+            # It already answered that line: it lost its count (a silent reset?). Sending
+            # the line again could run it twice, so stop instead.
+            raise PrinterError("resend", "firmware asked again for line %d, which it had already "
+                                         "acknowledged; refusing to send it twice" % line)
         accepted = [s for s in self.limbo if s.n < line]
         self.limbo = []
         kept = deque(s for s in self.fifo if s.n < line)
