@@ -337,7 +337,10 @@ class _Graph:
                     continue
             cap = len(runs) == 1 and len(runs[0]) == len(cycle)
             peaks += cap
-            saddles += (not cap) and len(runs) >= 2
+            # A saddle joins two or more closed isolines of one level; cells between
+            # open arcs (where isolines meet the edge) are not saddles of the field.
+            saddles += (not cap) and len(runs) >= 2 and all(
+                self.pieces[he[cycle[r[0]]][2]].closed for r in runs)
             centre = _peak(field, xy[ring]) if cap else _inner_point(xy[ring])
             cid = len(xy) + len(centres)
             tris = fan(xy, ring, cid, centre)

@@ -80,19 +80,44 @@ def saddle(length_mm=150.0, width_mm=110.0, height_mm=30.0, pixel_mm=0.5):
     return HeightField(z, pixel_mm, source="saddle")
 
 
-def starfish(diameter_mm=175.0, height_mm=33.0, arms=5, pixel_mm=0.5):
-    """Starfish-like: non-convex five-armed footprint, one central summit."""
+def starfish(diameter_mm=175.0, height_mm=33.4, arms=5, pixel_mm=0.5):
+    """Starfish-like: a five-armed, non-convex footprint over a domed body.
+
+    The surface is a spherical cap (positive curvature everywhere, so every
+    printing edge can reach its length by shrinking) cut by the star outline:
+    the arm tips sit lowest, the edge between arms higher, so isolines are
+    open arcs across the arms and loops over the body. Sizes as the paper's
+    starfish (Table 1: 175.2 mm, 33.4 mm).
+    """
     R = diameter_mm / 2.0
     x, y = _grid(diameter_mm + 4 * pixel_mm, pixel_mm)
     r = np.hypot(x, y)
     phi = np.arctan2(y, x)
     # Arms where cos(arms*phi/2) = +-1; the power narrows them into arms.
     rb = R * (0.42 + 0.58 * np.abs(np.cos(arms * phi / 2.0)) ** 3)
+    rho = (R * R + height_mm ** 2) / (2 * height_mm)
+    z = np.sqrt(np.maximum(rho * rho - r * r, 0.0)) - (rho - height_mm)
+    z = np.where(r <= rb, np.maximum(z, 0.0), np.nan)
+    return HeightField(z, pixel_mm, source="starfish")
+
+
+def starfish_ridged(diameter_mm=175.0, height_mm=33.0, arms=5, pixel_mm=0.5):
+    """A starfish whose arms are ridges falling to a level edge.
+
+    The valleys between the arms curve negatively (half the area), which
+    shrinking alone cannot form: a stress case for the invalid-edge report,
+    not a reference shape.
+    """
+    R = diameter_mm / 2.0
+    x, y = _grid(diameter_mm + 4 * pixel_mm, pixel_mm)
+    r = np.hypot(x, y)
+    phi = np.arctan2(y, x)
+    rb = R * (0.42 + 0.58 * np.abs(np.cos(arms * phi / 2.0)) ** 3)
     t = r / rb
     z = (1.0 - t ** 2) * (1.0 - 0.5 * t)
     z = np.where(t <= 1.0, z, np.nan)
     z *= height_mm / np.nanmax(z)
-    return HeightField(z, pixel_mm, source="starfish")
+    return HeightField(z, pixel_mm, source="starfish_ridged")
 
 
 def terrain_tile(width_mm=120.0, depth_mm=90.0, height_mm=25.0, pixel_mm=0.5, seed=7):
@@ -117,3 +142,4 @@ def terrain_tile(width_mm=120.0, depth_mm=90.0, height_mm=25.0, pixel_mm=0.5, se
 
 REFERENCE = {"dome": dome, "elongated_peak": elongated_peak, "saddle": saddle,
              "three_islands": three_islands, "starfish": starfish, "terrain_tile": terrain_tile}
+STRESS = {"starfish_ridged": starfish_ridged}

@@ -186,7 +186,9 @@ def vertex_sigma(n, printing_edges, sigma, edges):
         cnt = np.bincount(a, has[b], minlength=n) + np.bincount(b, has[a], minlength=n)
         fill = missing & (cnt > 0)
         out[fill] = tot[fill] / cnt[fill]
-    return np.where(np.isnan(out), np.nanmean(out), out)
+    # No printing edge anywhere (a synthetic layout): no shrink is known, use 0.
+    fallback = float(np.nanmean(out)) if np.isfinite(out).any() else 0.0
+    return np.where(np.isnan(out), fallback, out)
 
 
 def merge_collinear(points, sigma, angle_deg, sigma_tol):

@@ -68,8 +68,8 @@ def test_path_index_field_on_a_flat_disc_counts_path_widths():
     faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
                             np.stack([a, d, c], -1).reshape(-1, 3)])
     # Counter-clockwise in the plane.
-    p = xy[faces]
-    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    a, b = xy[faces[:, 1]] - xy[faces[:, 0]], xy[faces[:, 2]] - xy[faces[:, 0]]
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     faces[cross < 0] = faces[cross < 0][:, ::-1]
     u = path_field(xy, faces, level, 0.5)
     assert u.reshape(n_r, n_t)[0].mean() - u.reshape(n_r, n_t)[-1].mean() == \
