@@ -88,3 +88,8 @@ def test_sim_url_options():
     with pytest.raises(PrinterError) as err:
         SimConfig.from_url("sim://?planer=8")
     assert err.value.code == "config"
+
+
+def test_fragment_echo_is_recognised():
+    assert protocol.is_fragment_echo('echo:Unknown command: "07"')
+    assert not protocol.is_fragment_echo('echo:Unknown command: "M999"')

@@ -357,8 +357,12 @@ class Driver:
     # -- receiving -----------------------------------------------------------------------
 
     def _on_reply(self, reply, at):
-        self._last_rx = at
         kind = reply.kind
+        # Anything but a periodic temperature report shows the firmware is working on our
+        # lines; reports count only while M109/M190 blocks (Marlin prints them instead of
+        # busy messages then). Otherwise M155 reports would hide a lost ok for ever.
+        if kind != protocol.TEMPS or self._flow.head_command()[:4] in _BLOCKING_HEAT:
+            self._last_rx = at
         if reply.temps:
             self.temperatures.update(reply.temps, time.time())
             self._emit("temperature", temps=self.temperatures.current())
@@ -389,6 +393,8 @@ class Driver:
             if self._state not in (CONNECTING, ERROR_STATE):
                 raise _PortLost("printer reset unexpectedly (got 'start')")
         elif kind in (protocol.ECHO, protocol.OTHER, protocol.FIRMWARE):
+            if protocol.is_fragment_echo(reply.text):
+                self._flow.on_fragment()
             self._emit("log", text=reply.text)
         # BUSY: a sign of life only (it resets the answer timeout above).
 

@@ -88,7 +88,7 @@ class Firmware:
         self.out = []               # reply lines waiting to be sent (without newline)
         self.fault = None           # 'reset' / 'disconnect' for the simulator to act on
         self.stats = dict(lines_received=0, line_errors=0, rx_overruns=0, lost_oks=0,
-                          corrupted=0, max_queue=0, max_unacked=0, starvation_s=0.0,
+                          corrupted=0, unknown_commands=0, max_queue=0, max_unacked=0, starvation_s=0.0,
                           starvation_events=0, max_starvation_gap_s=0.0, moves=0,
                           emergency_stop_at=None, killed=None)
         self._fired = set()
@@ -269,8 +269,15 @@ class Firmware:
             if self._line_faults(number, now):
                 return False
             self.current_state = {}
-            self.executed.append((number, text))
         code, params = words(text)
+        if not self.current_state:
+            if code[:1] in ("G", "M", "T"):
+                self.executed.append((number, text))
+            else:
+                # E.g. the checksum digits left of a line cut in half by the flush after a
+                # line error: Marlin answers "Unknown command" and ok, and does nothing.
+                self.stats["unknown_commands"] += 1
+            self.current_state["seen"] = True
         # Simulated time of this step: when the line arrived, a planner slot freed or the
         # previous command finished -- not when this thread got round to it.
         t_in = max(arrival, self.last_pop_time, self.last_done_time)
@@ -376,7 +383,7 @@ class Firmware:
             for axis in self.position:
                 if params.get(axis) is not None:
                     self.position[axis] = params[axis]
-        elif code not in _KNOWN and code[:1] in ("G", "M", "T"):
+        elif code not in _KNOWN:
             self.out.append('echo:Unknown command: "%s"' % text)
         return "ok"
 

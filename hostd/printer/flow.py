@@ -10,6 +10,9 @@ only right after N-1 (so the firmware itself never runs a line twice):
   their own ok, lines from r on are dropped or rejected by the firmware, so sending
   restarts at r once the link has been quiet for a moment (stragglers already on the
   wire each provoke another ``Resend: r``, which must not restart the replay again);
+- the flush can cut a line in two; the tail is only checksum digits (anything else
+  would contain the ``*``), which Marlin answers with ``Unknown command`` and an ok
+  that answers nothing;
 - after a silent timeout the unanswered lines go to ``limbo``: the next answered line
   (or resend request) tells which of them the firmware had accepted.
 """
@@ -185,6 +188,13 @@ class LineFlow:
         """An ``Error:`` about checksum/line number: more echoes may follow, stay quiet."""
         if self.resync_until > now:
             self.resync_until = now + self.quiet_s()
+
+    def on_fragment(self):
+        """The firmware ran the digits left of a line cut by its flush ("Unknown command").
+
+        Its ok answers nothing we sent.
+        """
+        self.error_acks += 1
 
     def quiet_s(self):
         return max(self.settings.resend_quiet_s, 3 * self.settings.rx_buffer_bytes * self.byte_s)

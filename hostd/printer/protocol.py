@@ -115,6 +115,15 @@ def parse_temperatures(text):
     return temps
 
 
+_FRAGMENT_RE = re.compile(r'Unknown command:\s*"[\d\s]*"')
+
+
+def is_fragment_echo(text):
+    """True for Marlin's ``Unknown command: "07"``: the checksum digits of a line whose
+    start was flushed after a line error (no command we send is only digits)."""
+    return bool(_FRAGMENT_RE.search(text))
+
+
 def is_resend_error(text):
     """True for ``Error:`` messages that Marlin follows with ``Resend:`` (not fatal)."""
     low = text.lower()

@@ -58,7 +58,7 @@ class LinkSettings:
     reopen_delay_s: float = 0.1         # closed->reopened gap, so the board sees the close
     handshake_timeout_s: float = 2.0    # per probe (M110 / M115) while connecting
     handshake_attempts: int = 4
-    ok_timeout_s: float = 10.0          # silence with lines in flight -> recovery
+    ok_timeout_s: float = 10.0          # no answer (ok, busy, error...) -> recovery
     max_timeouts: int = 4               # consecutive recoveries before the job stops
     resend_quiet_s: float = 0.03        # quiet period before replaying after a resend
     history_lines: int = 4096           # sent lines kept for resend requests
