@@ -50,7 +50,8 @@ class Staging:
         self.names = []
 
     def path(self, name):
-        self.names.append(name)
+        if name not in self.names:
+            self.names.append(name)
         return self.dir / name
 
     def write(self, name, data):
@@ -65,11 +66,12 @@ class Staging:
         self.write(name, buf.getvalue())
 
     def publish(self):
+        # Everything is complete and on disk before the first file moves.
         for name in self.names:
-            src = self.dir / name
-            with open(src, "rb") as f:
+            with open(self.dir / name, "rb") as f:
                 os.fsync(f.fileno())
-            os.replace(src, self.outdir / name)
+        for name in self.names:
+            os.replace(self.dir / name, self.outdir / name)
         self.discard()
 
     def discard(self):

@@ -70,6 +70,8 @@ def write_outputs(st, plan):
     t = time.perf_counter()
     stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(name + ".gcode"), name=name,
                               center=False)
+    if not plan.printable:
+        _mark_not_printable(st.path(name + ".gcode"), plan.problems)
     timing["gcode"] = round(time.perf_counter() - t, 4)
     plan.report["gcode"] = _gcode_report(stats)
     t = time.perf_counter()
@@ -108,6 +110,14 @@ def write_outputs(st, plan):
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed)" % (name, count),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+
+
+def _mark_not_printable(path, problems):
+    """Put the reasons at the top of the G-code, where a person or host sees them first."""
+    head = "".join("; WARNING NOT PRINTABLE: %s: %s\n" % (p["code"], p["message"])
+                   for p in problems if p["code"] == "flatten.overlap")
+    body = path.read_bytes()
+    path.write_bytes(head.encode("utf-8") + body)
 
 
 def _gcode_report(stats):

@@ -57,6 +57,7 @@ class Sidecar:
     profile : profile name or path to plan with
     max_fill_mm : deepest closed depression to fill, mm (overrides the profile)
     min_prominence_mm : smallest peak kept by simplification, mm (overrides the profile)
+    smooth_mm : smoothing scale before meshing, mm (overrides the profile)
     copies : how many sheets to print (>= 1); priority : queue priority (daemon)
     source : the sidecar file, or None when there is none
     """
@@ -68,6 +69,7 @@ class Sidecar:
     profile: str = None
     max_fill_mm: float = None
     min_prominence_mm: float = None
+    smooth_mm: float = None
     copies: int = 1
     priority: int = 0
     source: str = None
@@ -77,7 +79,8 @@ class Sidecar:
 _SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
                    "height_mm": ("float", True), "height_scale": ("float", True),
                    "profile": ("str", False), "max_fill_mm": ("float", False),
-                   "min_prominence_mm": ("float", False), "copies": ("int", True),
+                   "min_prominence_mm": ("float", False), "smooth_mm": ("float", False),
+                   "copies": ("int", True),
                    "priority": ("int", None)}
 
 
@@ -157,7 +160,7 @@ def settings(sidecar, profile=None):
                                                                            MeshParams())
     out = {"max_fill_mm": vp.max_fill_mm, "min_prominence_mm": mp.min_prominence_mm,
            "smooth_mm": mp.smooth_mm}
-    for k in ("max_fill_mm", "min_prominence_mm"):
+    for k in ("max_fill_mm", "min_prominence_mm", "smooth_mm"):
         if getattr(sidecar, k) is not None:
             out[k] = getattr(sidecar, k)
     return out

@@ -14,7 +14,6 @@ import numpy as np
 
 from pipeline import __version__
 from pipeline import heightfield as hfio
-from pipeline.errors import PlanError
 from pipeline.flatten import flatten
 from pipeline.mesh import build_mesh
 from pipeline.simplify import simplify
@@ -38,10 +37,19 @@ class Plan:
     xy_bed: object = None
     toolpaths: object = None
     simplified: dict = field(default_factory=dict)
+    problems: list = field(default_factory=list)
     report: dict = field(default_factory=dict)
+
+    @property
+    def printable(self):
+        """False when a problem makes printing pointless (the layout folds)."""
+        return not any(p["code"] == "flatten.overlap" for p in self.problems)
 
 
 STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
+
+# Above this invalid-edge fraction the report warns (the paper's models: 0.4-4.7 %).
+INVALID_WARN = 0.10
 
 
 def plan_file(path, profile, progress=None):
@@ -102,13 +110,23 @@ def plan_file(path, profile, progress=None):
                    weights=weights)
     result.flat = flat
     timing["flatten"] = time.perf_counter() - t
+    # A folded layout is not bad input: the plan goes on so the pictures show where,
+    # but it is marked not printable (the daemon will not print it).
     if flat.overlapping:
-        raise PlanError(
-            "the flattened layout folds over itself (%d flipped triangles, %d boundary "
-            "crossings)" % (flat.flipped_triangles, flat.boundary_intersections),
-            code="flatten.overlap", file=str(path),
-            fix="simplify the shape (raise min_prominence_mm), lower its height, or raise "
-                "flatten.iterations in the profile")
+        result.problems.append({
+            "code": "flatten.overlap",
+            "message": "the flattened layout folds over itself (%d flipped triangles, %d "
+                       "boundary crossings): paths there would overlap"
+                       % (flat.flipped_triangles, flat.boundary_intersections),
+            "fix": "simplify the shape (raise min_prominence_mm or smooth_mm in the sidecar "
+                   "or profile), lower its height, or raise flatten.iterations"})
+    if flat.invalid_edge_fraction > INVALID_WARN:
+        result.problems.append({
+            "code": "flatten.invalid_edges",
+            "message": "%.1f %% of the printing edges need a shrink outside %.3g..%.3g; the "
+                       "sheet will not reach the shape there" % (
+                           100 * flat.invalid_edge_fraction, lim.s_min, lim.s_max),
+            "fix": "see NAME.stress.png for where; lower the height or simplify"})
 
     t = stage("simulate", "forward simulation of the flat sheet")
     sim = simulate(mesh, flat, weights={k: weights[k] for k in
@@ -180,4 +198,6 @@ def _report(path, profile, p, vrep, srep, timing):
                            sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9))},
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
+        "printable": p.printable,
+        "warnings": list(p.problems),
     }

@@ -260,7 +260,7 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
         chains.append((p, sg, closed))
     children = _nesting(chains, levels)
     import shapely
-    footprint = shapely.Polygon(xy[boundary_loop(faces)]).buffer(0.25 * pw)
+    footprint = _outline_polygon(xy, faces).buffer(0.25 * pw)
     shapely.prepare(footprint)
     traces, tsig = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
                                  merge_sigma, footprint)
@@ -418,6 +418,14 @@ def boundary_loop(faces):
     return np.asarray(loop)
 
 
+def _outline_polygon(xy, faces):
+    """The flat sheet's outline as a valid polygon (a folded layout self-intersects)."""
+    import shapely
+
+    poly = shapely.Polygon(xy[boundary_loop(faces)])
+    return poly if poly.is_valid else shapely.make_valid(poly)
+
+
 def _metrics(traces, tsig, raw, xy, faces, pw):
     import shapely
 
@@ -447,7 +455,7 @@ def _metrics(traces, tsig, raw, xy, faces, pw):
     has = other.any(axis=1)
     spacing = d[has, np.argmax(other[has], axis=1)]
     # Coverage and overlap on a grid over the flat footprint.
-    poly = shapely.Polygon(xy[boundary_loop(faces)])
+    poly = _outline_polygon(xy, faces)
     res = pw / 3
     x0, y0 = xy.min(axis=0)
     x1, y1 = xy.max(axis=0)

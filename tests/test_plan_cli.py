@@ -131,3 +131,27 @@ def test_staging_is_discarded_when_writing_fails(small_dome, tmp_path, monkeypat
         with st:
             raise RuntimeError("disk full")
     assert os.listdir(tmp_path) == []
+
+
+def test_sidecar_overrides_the_simplification_settings(tmp_path):
+    from pipeline.heightfield import load_sidecar, settings
+    from pipeline.profile import load_profile
+    side = tmp_path / "x.yaml"
+    side.write_text("min_prominence_mm: 6\nsmooth_mm: 3.5\nmax_fill_mm: 4\n")
+    opts = settings(load_sidecar(side), load_profile("generic-0.5mm"))
+    assert opts == {"max_fill_mm": 4.0, "min_prominence_mm": 6.0, "smooth_mm": 3.5}
+
+
+@pytest.mark.slow
+def test_real_terrain_plans_and_says_whether_it_is_printable(terrain_dir, tmp_path):
+    src = terrain_dir / "coast_mountains_bc.png"
+    r = hostd("plan", src, "-o", tmp_path)
+    assert r.returncode in (0, 4), r.stderr
+    report = json.loads((tmp_path / "coast_mountains_bc.report.json").read_text())
+    check_contract(report, CONTRACT)
+    assert report["heightfield"]["filled_pits"] > 0          # real pits, filled per its sidecar
+    assert report["mesh"]["isolines"] > report["mesh"]["peaks"]
+    # Exit status 4 exactly when the plan is marked not printable, with the reason printed.
+    assert (r.returncode == 4) == (report["printable"] is False)
+    for w in report["warnings"]:
+        assert w["code"] in r.stderr

@@ -58,9 +58,15 @@ def run(args):
               file=sys.stderr)
         return 2
     r = plan.report
+    for w in r.get("warnings", []):
+        print("hostd plan: warning %s: %s. Fix: %s" % (w["code"], w["message"], w["fix"]),
+              file=sys.stderr)
     print("%s: %d triangles, invalid edges %.1f %%, simulated mean displacement %.2f mm "
           "(max %.2f), %.1f s -> %s" % (
               r["input"], r["mesh"]["triangles"], 100 * r["flatten"]["invalid_edge_fraction"],
               r["simulation"]["mean_displacement_mm"], r["simulation"]["max_displacement_mm"],
               r["timing_s"]["total"], Path(args.outdir) / (name + ".report.json")))
+    if not r["printable"]:
+        print("hostd plan: planned, but NOT printable (see the warnings above)", file=sys.stderr)
+        return 4
     return 0
