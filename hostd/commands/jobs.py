@@ -1,0 +1,134 @@
+"""Terminal commands over the job store of a running daemon.
+
+``hostd jobs [--state S]``, ``hostd job ID``, ``hostd requeue ID``, ``hostd cancel ID``,
+``hostd pause PRINTER``, ``hostd resume PRINTER``. Actions go to the daemon through the
+store's control table; without a running daemon they are refused (listing still works).
+"""
+
+import json
+import sys
+import time
+
+from hostd.errors import HostdError
+
+WAIT_S = 15.0
+
+
+def _common(p):
+    p.add_argument("--config", "-c", default=None, metavar="FILE",
+                   help="hostd.yaml of the daemon (default: the embedded default)")
+
+
+def add_parser(sub):
+    p = sub.add_parser("jobs", help="list jobs of the daemon (table)")
+    _common(p)
+    p.add_argument("--state", choices=_states(), help="only jobs in this state")
+    p.add_argument("--json", action="store_true", help="JSON instead of a table")
+    p.set_defaults(func=cmd_jobs)
+    p = sub.add_parser("job", help="one job: its events and report summary")
+    _common(p)
+    p.add_argument("id", help="job id (a unique prefix is enough)")
+    p.set_defaults(func=cmd_job)
+    for action, what, help_ in (("requeue", "id", "queue a finished job again"),
+                                ("cancel", "id", "cancel a queued, planning or printing job"),
+                                ("pause", "printer", "pause a printer (it takes no new jobs)"),
+                                ("resume", "printer", "resume a paused printer")):
+        p = sub.add_parser(action, help=help_)
+        _common(p)
+        p.add_argument("target", metavar=what.upper())
+        p.set_defaults(func=cmd_action, action=action)
+
+
+def _states():
+    from hostd.jobs import STATES
+    return STATES
+
+
+def _open(args, need_daemon):
+    from hostd.config import load_config
+    from hostd.daemon import running_pid
+    from hostd.jobs import JobStore
+    config = load_config(args.config)
+    pid = running_pid(config.lock_path)
+    if need_daemon and not pid:
+        raise HostdError("no hostd daemon runs with state folder %s" % config.state_dir,
+                         code="control.no_daemon",
+                         fix="start it with `hostd run%s`" % (" --config " + args.config
+                                                             if args.config else ""))
+    return config, JobStore(config.db_path, create=False), pid
+
+
+def _fail(exc):
+    print("hostd: error %s: %s" % (exc.code, exc.text()), file=sys.stderr)
+    return 2
+
+
+def _when(t):
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t)) if t else "-"
+
+
+def cmd_jobs(args):
+    try:
+        config, store, pid = _open(args, need_daemon=False)
+    except HostdError as exc:
+        return _fail(exc)
+    rows = store.list(args.state)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    if not pid:
+        print("(no daemon runs: showing the stored jobs)", file=sys.stderr)
+    print("%-22s %-11s %-10s %5s %-3s %-19s %s" % ("ID", "STATE", "PRINTER", "PROG", "PRI",
+                                                  "CREATED", "NAME"))
+    for r in rows:
+        print("%-22s %-11s %-10s %4.0f%% %3d %-19s %s" % (
+            r["id"], r["state"], r["printer"] or "-", 100 * (r["progress"] or 0), r["priority"],
+            _when(r["created_at"]), r["rel_path"]))
+    return 0
+
+
+def cmd_job(args):
+    from pathlib import Path
+    try:
+        _, store, _ = _open(args, need_daemon=False)
+        job = store.require(args.id)
+    except HostdError as exc:
+        return _fail(exc)
+    for key in ("id", "name", "rel_path", "state", "printer", "profile", "priority", "copies",
+                "progress", "last_line", "input_path", "outbox", "error"):
+        value = job[key]
+        if key == "progress":
+            value = "%.1f %%" % (100 * (value or 0))
+        print("%-11s %s" % (key + ":", value if value is not None else "-"))
+    print("events:")
+    for e in store.events(job["id"]):
+        print("  %s  %-11s %s" % (_when(e["at"]), e["kind"], e["message"] or ""))
+    reports = sorted(Path(job["outbox"]).glob("*.report.json")) if job["outbox"] else []
+    if reports:
+        try:
+            r = json.loads(reports[0].read_text())
+            print("report: %s" % reports[0])
+            for section, keys in (("mesh", ("triangles",)),
+                                  ("simulation", ("mean_displacement_mm", "max_displacement_mm")),
+                                  ("gcode", ("lines", "estimated_print_s", "filament_mm"))):
+                for k in keys:
+                    if k in r.get(section, {}):
+                        print("  %s.%s: %s" % (section, k, r[section][k]))
+        except (OSError, ValueError):
+            pass
+    return 0
+
+
+def cmd_action(args):
+    try:
+        _, store, _ = _open(args, need_daemon=True)
+    except HostdError as exc:
+        return _fail(exc)
+    req = store.request(args.action, args.target)
+    answer = store.wait_answer(req, timeout_s=WAIT_S)
+    if answer is None:
+        print("hostd: the daemon did not answer within %.0f s" % WAIT_S, file=sys.stderr)
+        return 1
+    ok, text = answer
+    print(text if ok else "hostd: %s" % text, file=sys.stdout if ok else sys.stderr)
+    return 0 if ok else 1

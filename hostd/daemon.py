@@ -1,0 +1,589 @@
+"""The run loop of ``hostd run``: drop folder -> claim -> plan -> print -> archive.
+
+One thread owns the loop (and the job store); each printer link has its own driver
+thread, each plan its own process. Every tick: answer control requests from the
+terminal commands, take complete files from the drop folder, start and reap plans,
+follow prints and hand ready jobs to idle printers, and every ``heartbeat_s`` renew
+the claim lease, publish the node status and ping systemd's watchdog.
+
+On SIGTERM/SIGINT the loop stops feeding printers (cancel script: heaters off, lift,
+motors off), leaves printing jobs ``interrupted``, stops the plans (their jobs are
+planned again on the next start) and exits within ``stop_timeout_s``.
+"""
+
+import fcntl
+import logging
+import os
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+from hostd import farm as farm_mod
+from hostd import jobs as J
+from hostd.errors import HostdError
+from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
+from hostd.notify import Notifier
+from hostd.planning import PlanProcess
+from hostd.watcher import INPUT_SUFFIXES, Watcher, name_problem
+
+log = logging.getLogger("hostd.daemon")
+TICK_S = 0.05
+
+
+class DaemonLock:
+    """``state_dir/hostd.pid`` held with flock while a daemon runs (one per state folder)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.fd = None
+
+    def acquire(self):
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise HostdError("another hostd (pid %s) already runs with this state folder"
+                             % (running_pid(self.path) or "?"), code="daemon.running",
+                             file=self.path, fix="stop it first, or give this one its own "
+                                                 "state_dir") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, b"%d\n" % os.getpid())
+        self.fd = fd
+
+    def release(self):
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
+
+def running_pid(lock_path):
+    """The pid of the daemon holding ``lock_path``, or None when no daemon runs."""
+    try:
+        fd = os.open(lock_path, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None          # nobody holds it
+    except OSError:
+        text = os.read(fd, 32).decode(errors="replace").strip()
+        return int(text) if text.isdigit() else -1
+    finally:
+        os.close(fd)
+
+
+class Slot:
+    """One configured printer: its link (connected in the background) and current job."""
+
+    def __init__(self, config):
+        self.config = config
+        self.name = config.name
+        self.printer = None
+        self.job_id = None           # store id of the job printing here
+        self.link_job = None         # hostd.printer.job.Job
+        self.paused = False          # operator pause: no new jobs
+        self.error = None
+        self._thread = None
+
+    def connect_async(self):
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._thread = threading.Thread(target=self._connect, name="connect-" + self.name,
+                                        daemon=True)
+        self._thread.start()
+
+    def _connect(self):
+        from hostd.printer import LinkSettings, Printer, PrinterError
+        try:
+            if self.printer is None:
+                self.printer = Printer(self.config.port, LinkSettings(baud=self.config.baud))
+            self.printer.connect()
+            self.error = None
+            log.info("printer %s connected (%s)", self.name, self.config.port)
+        except (PrinterError, OSError) as exc:
+            self.error = str(exc)
+            log.warning("printer %s: cannot connect: %s", self.name, exc)
+
+    @property
+    def state(self):
+        return self.printer.state if self.printer is not None else "disconnected"
+
+    def available(self):
+        return self.job_id is None and not self.paused and self.state == "idle"
+
+    def close(self):
+        if self.printer is not None:
+            self.printer.close()
+
+
+class Daemon:
+    def __init__(self, config, notifier=None):
+        self.config = config
+        self.notify = notifier or Notifier()
+        self.stop_event = threading.Event()
+        self.slots = [Slot(p) for p in config.printers]
+        self.farm = Farm(config.drop_dir, config.node_id, config.lease_s)
+        self.cache = PlanCache(Path(config.outbox_dir) / ".cache")
+        self.watcher = Watcher(config.drop_dir, config.settle_s, config.poll_s)
+        self.plans = {}              # job id -> PlanProcess
+        self.lock = DaemonLock(config.lock_path)
+        self.store = None
+        self._next_beat = 0.0
+        self._next_reconnect = 0.0
+        self._profile_hashes = {}
+        self._skipped = set()
+
+    # -- lifecycle --------------------------------------------------------------------------
+
+    def setup(self):
+        c = self.config
+        self.lock.acquire()
+        for d in (c.drop_dir, c.state_dir, c.outbox_dir, c.done_dir, c.failed_dir):
+            Path(d).mkdir(parents=True, exist_ok=True)
+        self.store = J.JobStore(c.db_path)
+        self.farm.setup()
+        self._recover()
+        for slot in self.slots:
+            self.store.set_printer(slot.name, state="connecting", paused=0, job_id=None)
+            slot.connect_async()
+        self.watcher.start()
+        log.info("node %s watching %s with %d printer(s)", c.node_id, c.drop_dir, len(self.slots))
+        self.notify.ready("watching %s" % c.drop_dir)
+
+    def request_stop(self, *_):
+        self.stop_event.set()
+
+    def run(self):
+        """Set up, loop until asked to stop, shut down; returns the exit status."""
+        self.setup()
+        try:
+            while not self.stop_event.is_set():
+                self.tick()
+                self.stop_event.wait(TICK_S)
+        finally:
+            self.shutdown()
+        return 0
+
+    def tick(self):
+        now = time.monotonic()
+        self._control()
+        for cand in self.watcher.poll(now):
+            self._intake(cand)
+        self._reap_plans()
+        self._start_plans()
+        self._follow_prints()
+        self._dispatch()
+        if now >= self._next_beat:
+            self._next_beat = now + min(self.config.heartbeat_s, self.notify.watchdog_s or 1e9)
+            self._heartbeat()
+
+    def shutdown(self):
+        self.notify.stopping("stopping")
+        log.info("stopping")
+        deadline = time.monotonic() + max(1.0, self.config.stop_timeout_s - 3.0)
+        for job_id, proc in list(self.plans.items()):
+            proc.kill()
+            self.store.set_state(job_id, J.QUEUED, "daemon stopped while planning: will plan "
+                                                   "again on the next start")
+        self.plans.clear()
+        for slot in self.slots:
+            if slot.job_id is not None and slot.link_job is not None:
+                try:
+                    slot.printer.cancel()   # stop feeding; heaters off, lift, motors off
+                except Exception as exc:
+                    log.warning("printer %s: cancel failed: %s", slot.name, exc)
+        for slot in self.slots:
+            if slot.job_id is not None:
+                if slot.link_job is not None:
+                    slot.link_job.wait(max(0.1, deadline - time.monotonic()))
+                self._interrupt(slot, "the daemon was stopped during the print")
+        self.watcher.stop()
+        for slot in self.slots:
+            slot.close()
+            self.store.set_printer(slot.name, state="stopped", job_id=None)
+        self._heartbeat(state="stopped")
+        self.store.close()
+        self.lock.release()
+
+    # -- recovery -----------------------------------------------------------------------------
+
+    def _recover(self):
+        for job_id in self.store.recover():
+            job = self.store.get(job_id)
+            if job["state"] == J.INTERRUPTED:
+                self._to_failed(job, "The print of %s was interrupted: the daemon stopped or "
+                                     "crashed while printing (last confirmed line %d). Check "
+                                     "the printer and the bed, then print it again with "
+                                     "`hostd requeue %s`." % (job["name"], job["last_line"],
+                                                             job_id))
+        for job in self.store.list([J.QUEUED, J.READY]):
+            if not os.path.exists(job["input_path"]):
+                self.store.set_state(job["id"], J.CANCELLED, "input is gone from the claim "
+                                     "folder (released to other nodes while this node was away)")
+            elif job["state"] == J.READY and not self._gcode(job):
+                self.store.set_state(job["id"], J.QUEUED, "outputs missing: planning again")
+        known = {j["input_path"] for j in self.store.list(J.ACTIVE)}
+        # Claimed before the crash but never recorded: adopt.
+        for path in sorted(self.farm.claim_dir.glob("*/*")):
+            if path.suffix.lower() in INPUT_SUFFIXES and str(path) not in known:
+                target = None if path.parent.name == farm_mod.ROOT_TARGET else path.parent.name
+                side = path.with_name(path.stem + ".yaml")
+                self._add_job(path.name, (target + "/" if target else "") + path.name, path,
+                              side if side.exists() else None, target)
+
+    # -- intake ----------------------------------------------------------------------------------
+
+    def _target_ok(self, target):
+        return target is None or any(target in (s.name, s.config.profile) for s in self.slots)
+
+    def _intake(self, cand):
+        if not self._target_ok(cand.target):
+            if cand.rel_path not in self._skipped:
+                self._skipped.add(cand.rel_path)
+                log.info("%s: folder %r is not a printer or profile of this node; leaving it",
+                         cand.rel_path, cand.target)
+            return
+        claimed = self.farm.claim(cand)
+        if claimed is None:
+            return
+        path, side = claimed
+        self._add_job(cand.path.name, cand.rel_path, path, side, cand.target)
+
+    def _add_job(self, name, rel_path, path, side, target):
+        from pipeline.errors import PipelineError
+        from pipeline.heightfield import load_sidecar
+        values = dict(target=target, node_id=self.config.node_id,
+                      sidecar_path=str(side) if side else None)
+        problem = name_problem(name)
+        if problem:
+            name = path.name
+        try:
+            sidecar = load_sidecar(side) if side else None
+        except PipelineError as exc:
+            job_id = self.store.add(name, rel_path, path, **values)
+            return self._fail(self.store.get(job_id), exc.text(), exc.code)
+        profile = self._profile_for(target, sidecar)
+        values.update(profile=profile, priority=sidecar.priority if sidecar else 0,
+                      copies=sidecar.copies if sidecar else 1)
+        job_id = self.store.add(name, rel_path, path, **values)
+        log.info("job %s: %s claimed (profile %s)", job_id, rel_path, profile)
+        job = self.store.get(job_id)
+        if not any(self._eligible(s, job) for s in self.slots):
+            return self._fail(job, "No printer on node %s uses profile %r%s. Drop the file into "
+                              "a folder named after a printer or profile, or change the "
+                              "sidecar's `profile:`." % (self.config.node_id, profile,
+                                                         " in folder %r" % target if target else ""),
+                              "job.no_printer")
+
+    def _profile_for(self, target, sidecar):
+        if sidecar is not None and sidecar.profile:
+            return sidecar.profile
+        for slot in self.slots:
+            if target in (slot.name, slot.config.profile):
+                return slot.config.profile
+        return self.slots[0].config.profile
+
+    def _eligible(self, slot, job):
+        t = job["target"]
+        return (t is None or t in (slot.name, slot.config.profile)) \
+            and slot.config.profile == job["profile"]
+
+    # -- planning --------------------------------------------------------------------------------
+
+    def _profile_hash(self, name):
+        if name not in self._profile_hashes:
+            from pipeline.profile import load_profile, profile_hash
+            self._profile_hashes[name] = profile_hash(load_profile(name))
+        return self._profile_hashes[name]
+
+    def _start_plans(self):
+        from pipeline import __version__
+        from pipeline.errors import PipelineError
+        for job in self.store.next_in_order(J.QUEUED):
+            if len(self.plans) >= self.config.planning.workers:
+                return
+            try:
+                digest = job["input_hash"] or file_hash(job["input_path"])
+                key = plan_key(digest, job["sidecar_path"], self._profile_hash(job["profile"]),
+                               __version__)
+            except PipelineError as exc:
+                self._fail(job, exc.text(), exc.code)
+                continue
+            except OSError as exc:
+                self._fail(job, "cannot read the input: %s" % exc, "job.unreadable")
+                continue
+            self.store.update(job["id"], input_hash=digest, plan_key=key)
+            job.update(input_hash=digest, plan_key=key)
+            if self.cache.get(key):
+                self._ready(job, "plan found in the cache")
+                continue
+            outdir = self.cache.staging(job["id"])
+            proc = PlanProcess(job["id"], job["input_path"], job["profile"], outdir,
+                               self.config.planning.time_limit_s, self.config.planning.memory_mb)
+            self.plans[job["id"]] = proc
+            self.store.set_state(job["id"], J.PLANNING, "planning in process %d" % proc.pid)
+
+    def _reap_plans(self):
+        for job_id, proc in list(self.plans.items()):
+            result = proc.poll()
+            if result is None:
+                continue
+            del self.plans[job_id]
+            job = self.store.get(job_id)
+            if result.get("ok"):
+                self.cache.store(proc.outdir, job["plan_key"], Path(job["input_path"]).stem)
+                self._ready(job, "planned in %.1f s" % (time.monotonic() - proc.started))
+            else:
+                outbox = self._outbox(job)
+                for f in Path(proc.outdir).glob("*.error.json"):
+                    shutil.copy2(f, outbox / f.name)
+                shutil.rmtree(proc.outdir, ignore_errors=True)
+                text = result.get("text") or result.get("message") or "planning failed"
+                if result.get("fix") and "Fix:" not in text:
+                    text += ". Fix: " + result["fix"]
+                self._fail(job, text, result.get("code"))
+
+    def _outbox(self, job):
+        d = Path(self.config.outbox_dir) / job["id"]
+        d.mkdir(parents=True, exist_ok=True)
+        return d
+
+    def _ready(self, job, message):
+        outbox = self._outbox(job)
+        self.cache.export(job["plan_key"], outbox, Path(job["name"]).stem if not
+                          name_problem(job["name"]) else Path(job["input_path"]).stem)
+        self.store.set_state(job["id"], J.READY, message, outbox=str(outbox))
+
+    def _gcode(self, job):
+        if not job["outbox"]:
+            return None
+        found = sorted(Path(job["outbox"]).glob("*.gcode"))
+        return found[0] if found else None
+
+    # -- printing ---------------------------------------------------------------------------------
+
+    def _dispatch(self):
+        now = time.monotonic()
+        if now >= self._next_reconnect:
+            self._next_reconnect = now + 5.0
+            for slot in self.slots:
+                if slot.state in ("disconnected",) and slot.job_id is None:
+                    slot.connect_async()
+        for job in self.store.next_in_order(J.READY):
+            for slot in self.slots:
+                if slot.available() and self._eligible(slot, job):
+                    self._start_print(slot, job)
+                    break
+
+    def _start_print(self, slot, job):
+        from hostd.printer import PrinterError
+        gcode = self._gcode(job)
+        if gcode is None:
+            self.store.set_state(job["id"], J.QUEUED, "G-code missing from the outbox: planning again")
+            return
+        try:
+            slot.link_job = slot.printer.start(str(gcode), job_id=job["id"])
+        except PrinterError as exc:
+            log.warning("printer %s cannot start %s: %s", slot.name, job["id"], exc)
+            return
+        slot.job_id = job["id"]
+        self.store.set_state(job["id"], J.PRINTING, "printing on %s (copy %d of %d)" % (
+            slot.name, job["copies_done"] + 1, job["copies"]), printer=slot.name,
+            started_at=job["started_at"] or time.time(), progress=0.0)
+        self.store.set_printer(slot.name, job_id=job["id"])
+
+    def _follow_prints(self):
+        for slot in self.slots:
+            if slot.job_id is None:
+                continue
+            snap = slot.link_job.snapshot()
+            if snap["result"] is None:
+                total = snap["total"] or 0
+                progress = snap["confirmed"] / total if total else 0.0
+                self.store.update(slot.job_id, progress=round(progress, 4),
+                                  last_line=snap["last_confirmed_line"])
+                continue
+            job = self.store.get(slot.job_id)
+            slot.job_id, slot.link_job = None, None
+            self.store.set_printer(slot.name, job_id=None)
+            if snap["result"] == "done":
+                copies = job["copies_done"] + 1
+                if copies < job["copies"]:
+                    self.store.set_state(job["id"], J.READY, "copy %d printed" % copies,
+                                         copies_done=copies, progress=1.0)
+                    continue
+                dest, side = archive_done(job["input_path"], job["sidecar_path"],
+                                          self.config.done_dir, job["name"])
+                self.store.set_state(job["id"], J.DONE, "printed on %s in %.0f s" % (
+                    slot.name, snap["seconds"]), copies_done=copies, progress=1.0,
+                    last_line=snap["last_confirmed_line"], input_path=str(dest),
+                    sidecar_path=str(side) if side else None)
+            elif snap["result"] == "cancelled":
+                self._to_failed(job, "The print of %s was cancelled by a person (hostd cancel)."
+                                % job["name"], state=J.CANCELLED)
+            else:
+                self._fail(job, "The printer %s stopped the print: %s. Check the printer, "
+                                "then `hostd requeue %s`." % (slot.name, snap["error"] or
+                                                              slot.printer.last_error, job["id"]),
+                           "printer.error")
+
+    def _interrupt(self, slot, reason):
+        job = self.store.get(slot.job_id)
+        snap = slot.link_job.snapshot() if slot.link_job is not None else {}
+        line = snap.get("last_confirmed_line", job["last_line"])
+        slot.job_id, slot.link_job = None, None
+        self.store.update(job["id"], last_line=line)
+        self._to_failed(dict(job, last_line=line),
+                        "The print of %s was interrupted: %s (last confirmed line %d). Check the "
+                        "bed, then print it again with `hostd requeue %s`."
+                        % (job["name"], reason, line, job["id"]), state=J.INTERRUPTED,
+                        code="job.interrupted")
+
+    # -- endings -----------------------------------------------------------------------------------
+
+    def _fail(self, job, reason, code=None):
+        # People know the file by the name they dropped, not by its claimed path.
+        reason = reason.replace(str(job["input_path"]), job["rel_path"])
+        log.warning("job %s failed: %s", job["id"], reason)
+        self._to_failed(job, reason, state=J.FAILED, code=code or "job.failed")
+
+    def _to_failed(self, job, reason, state=None, code=None):
+        """Move the input to failed/ beside NAME.error.txt and record ``state``."""
+        values = {}
+        if os.path.exists(job["input_path"]) and Path(job["input_path"]).parent != \
+                Path(self.config.failed_dir):
+            text = "%s\n\nFile: %s\nJob: %s (node %s)\n" % (reason, job["rel_path"], job["id"],
+                                                              self.config.node_id)
+            dest, side = archive_failed(job["input_path"], job["sidecar_path"],
+                                        self.config.failed_dir, job["name"], text)
+            values = dict(input_path=str(dest), sidecar_path=str(side) if side else None)
+        if state is not None and state != job["state"]:
+            self.store.set_state(job["id"], state, reason, error=reason, error_code=code, **values)
+        elif values:
+            self.store.update(job["id"], **values)
+
+    # -- terminal commands ----------------------------------------------------------------------------
+
+    def _control(self):
+        for req in self.store.pending_requests():
+            try:
+                ok, result = True, getattr(self, "_do_" + req["action"])(req["target"])
+            except HostdError as exc:
+                ok, result = False, exc.text()
+            except Exception as exc:  # answer the CLI whatever happens, then carry on
+                log.exception("control request %s failed", req)
+                ok, result = False, "internal error: %s" % exc
+            self.store.answer(req["id"], ok, result)
+
+    def _slot(self, name):
+        for slot in self.slots:
+            if slot.name == name:
+                return slot
+        raise HostdError("no printer %r on node %s" % (name, self.config.node_id),
+                         code="control.unknown_printer",
+                         fix="printers here: " + ", ".join(s.name for s in self.slots))
+
+    def _do_cancel(self, job_id):
+        job = self.store.require(job_id)
+        if job["state"] in J.FINISHED:
+            raise HostdError("job %s is already %s" % (job["id"], job["state"]),
+                             code="control.finished")
+        if job["state"] == J.PRINTING:
+            for slot in self.slots:
+                if slot.job_id == job["id"]:
+                    slot.printer.cancel()
+            return "cancelling %s: the printer runs its cancel script" % job["id"]
+        proc = self.plans.pop(job["id"], None)
+        if proc:
+            proc.kill()
+        self._to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
+                        state=J.CANCELLED)
+        return "cancelled %s" % job["id"]
+
+    def _do_requeue(self, job_id):
+        job = self.store.require(job_id)
+        if job["state"] not in J.FINISHED:
+            raise HostdError("job %s is %s, not finished" % (job["id"], job["state"]),
+                             code="control.active", fix="cancel it first")
+        src = Path(job["input_path"])
+        if not src.exists():
+            raise HostdError("the input of %s is gone (%s)" % (job["id"], src),
+                             code="control.input_missing", fix="drop the file again")
+        folder = self.farm.claim_dir / (job["target"] or farm_mod.ROOT_TARGET)
+        folder.mkdir(parents=True, exist_ok=True)
+        dest = farm_mod.unique_path(folder / src.name)
+        os.rename(src, dest)
+        side = None
+        if job["sidecar_path"] and os.path.exists(job["sidecar_path"]):
+            side = dest.with_name(dest.stem + ".yaml")
+            os.rename(job["sidecar_path"], side)
+        err = src.with_name(src.stem + ".error.txt")
+        if err.exists():
+            os.unlink(err)   # the reason is kept in the job's events
+        self.store.set_state(job["id"], J.QUEUED, "requeued by a person", input_path=str(dest),
+                             sidecar_path=str(side) if side else None, error=None,
+                             error_code=None, copies_done=0, progress=0.0, finished_at=None)
+        return "requeued %s" % job["id"]
+
+    def _do_pause(self, name):
+        slot = self._slot(name)
+        slot.paused = True
+        self.store.set_printer(name, paused=1)
+        if slot.job_id is not None:
+            slot.printer.pause()
+            self.store.event(slot.job_id, "paused", "paused by a person")
+        return "paused %s" % name
+
+    def _do_resume(self, name):
+        slot = self._slot(name)
+        slot.paused = False
+        self.store.set_printer(name, paused=0)
+        if slot.job_id is not None:
+            slot.printer.resume()
+            self.store.event(slot.job_id, "resumed", "resumed by a person")
+        return "resumed %s" % name
+
+    # -- status -------------------------------------------------------------------------------------
+
+    def status(self, state="running"):
+        printers = []
+        for slot in self.slots:
+            printers.append({"name": slot.name, "profile": slot.config.profile,
+                             "state": slot.state, "paused": slot.paused, "job": slot.job_id,
+                             "error": slot.error})
+        queued = len(self.store.list([J.QUEUED, J.PLANNING, J.READY]))
+        return {"state": state, "pid": os.getpid(), "printers": printers, "queue_length": queued,
+                "planning": sorted(self.plans)}
+
+    def _heartbeat(self, state="running"):
+        try:
+            self.farm.renew_lease()
+            if state == "running":
+                self.farm.release_dead()
+            status = self.status(state)
+            self.farm.publish_status(status)
+            for slot in self.slots:
+                self.store.set_printer(slot.name, state=slot.state)
+        except OSError as exc:
+            log.warning("cannot write to the share: %s", exc)
+            return
+        busy = [s for s in status["printers"] if s["job"]]
+        self.notify.status("%d printing, %d queued, %d planning" % (
+            len(busy), status["queue_length"], len(status["planning"])))
+        self.notify.watchdog()
+
+
+def run(config):
+    """Run the daemon in this process until SIGTERM/SIGINT; returns the exit status."""
+    daemon = Daemon(config)
+    old = {s: signal.signal(s, daemon.request_stop) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return daemon.run()
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)

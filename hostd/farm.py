@@ -1,0 +1,262 @@
+"""Several nodes, one share: claims, leases, node status files, archives and the plan cache.
+
+- Claim: rename ``drop/[TARGET/]NAME.ext`` to ``drop/.claimed/<node>/<TARGET|@>/SAFE.ext``.
+  Rename within one filesystem is atomic (local disks, NFS, SMB): one node wins, the
+  others get ENOENT. The sidecar follows its file.
+- Lease: each node rewrites ``drop/.claimed/<node>/.lease`` every heartbeat; a node
+  whose lease is older than ``lease_s`` is dead and any node moves its claimed files
+  back into the drop folder.
+- Status: ``drop/.hostd/nodes/<node>.json`` (printers, state, current job, queue
+  length, last seen), written atomically.
+- Inputs are never deleted: ``done/YYYY-MM-DD/`` after success, ``failed/`` beside
+  ``NAME.error.txt`` otherwise.
+- Plan cache: ``outbox/.cache/<key>/`` with key = hash(input, sidecar, profile hash,
+  pipeline version).
+"""
+
+import errno
+import hashlib
+import json
+import logging
+import os
+import shutil
+import time
+from pathlib import Path
+
+from hostd.outputs import atomic_write, json_text
+from hostd.watcher import safe_stem
+
+log = logging.getLogger("hostd.farm")
+
+ROOT_TARGET = "@"   # claimed-folder name for files dropped at the top of the drop folder
+
+
+def unique_path(path):
+    """``path``, or ``NAME-2.ext``, ``NAME-3.ext`` ... whichever does not exist yet."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return path
+    for i in range(2, 100000):
+        other = path.with_name("%s-%d%s" % (path.stem, i, path.suffix))
+        if not os.path.lexists(other):
+            return other
+    raise FileExistsError(path)
+
+
+def file_hash(path, chunk=1 << 20):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(chunk), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def plan_key(input_hash, sidecar_path, profile_hash, version):
+    """Cache key of a plan: what goes in decides what comes out."""
+    h = hashlib.sha256()
+    h.update(input_hash.encode())
+    h.update(b"\0")
+    if sidecar_path and os.path.exists(sidecar_path):
+        h.update(Path(sidecar_path).read_bytes())
+    h.update(b"\0" + str(profile_hash).encode() + b"\0" + str(version).encode())
+    return h.hexdigest()[:32]
+
+
+class Farm:
+    """This node's view of the shared drop folder."""
+
+    def __init__(self, drop_dir, node_id, lease_s=60.0):
+        self.drop_dir = Path(drop_dir)
+        self.node_id = node_id
+        self.lease_s = float(lease_s)
+        self.claims_root = self.drop_dir / ".claimed"
+        self.claim_dir = self.claims_root / node_id
+        self.nodes_dir = self.drop_dir / ".hostd" / "nodes"
+
+    def setup(self):
+        for d in (self.claim_dir, self.nodes_dir):
+            d.mkdir(parents=True, exist_ok=True)
+        self.renew_lease()
+
+    # -- claims ------------------------------------------------------------------------------
+
+    def claim(self, candidate):
+        """Rename the candidate (and its sidecar) into our claim folder.
+
+        Returns ``(input_path, sidecar_path or None)``, or None when another node won.
+        """
+        folder = self.claim_dir / (candidate.target or ROOT_TARGET)
+        folder.mkdir(parents=True, exist_ok=True)
+        stem = safe_stem(candidate.path.name)
+        dest = unique_path(folder / (stem + candidate.path.suffix.lower()))
+        while os.path.lexists(dest.with_name(dest.stem + ".yaml")):
+            dest = unique_path(dest.with_name(dest.stem + "-x" + dest.suffix))
+        try:
+            os.rename(candidate.path, dest)
+        except FileNotFoundError:
+            return None   # another node (or a person) took it first
+        side = None
+        if candidate.sidecar is not None:
+            side = dest.with_name(dest.stem + ".yaml")
+            try:
+                os.rename(candidate.sidecar, side)
+            except FileNotFoundError:
+                side = None
+        return dest, side
+
+    def renew_lease(self):
+        self.claim_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(self.claim_dir / ".lease", "%f\n" % time.time())
+
+    def release_dead(self, now=None):
+        """Move claims of nodes whose lease expired back into the drop folder; returns count."""
+        now = time.time() if now is None else now
+        moved = 0
+        try:
+            nodes = [d for d in os.scandir(self.claims_root) if d.is_dir(follow_symlinks=False)]
+        except OSError:
+            return 0
+        for node in nodes:
+            if node.name == self.node_id:
+                continue
+            lease = Path(node.path) / ".lease"
+            try:
+                age = now - lease.stat().st_mtime
+            except FileNotFoundError:
+                age = now - node.stat().st_mtime
+            if age < self.lease_s:
+                continue
+            moved += self._release(Path(node.path))
+        return moved
+
+    def _release(self, node_dir):
+        moved = 0
+        for target_dir in node_dir.iterdir():
+            if not target_dir.is_dir() or target_dir.is_symlink():
+                continue
+            dest_dir = self.drop_dir if target_dir.name == ROOT_TARGET else \
+                self.drop_dir / target_dir.name
+            dest_dir.mkdir(parents=True, exist_ok=True)
+            # Sidecars first, so an input never reappears without its sidecar.
+            entries = sorted(target_dir.iterdir(), key=lambda p: p.suffix.lower() != ".yaml")
+            for path in entries:
+                if path.name.startswith(".") or not path.is_file():
+                    continue
+                dest = dest_dir / path.name
+                if os.path.lexists(dest):
+                    continue
+                try:
+                    os.rename(path, dest)
+                    moved += 1
+                except OSError as exc:
+                    if exc.errno != errno.ENOENT:
+                        log.warning("cannot release %s: %s", path, exc)
+        if moved:
+            log.warning("released %d claimed files of dead node %s", moved, node_dir.name)
+        return moved
+
+    # -- node status --------------------------------------------------------------------------
+
+    def publish_status(self, status):
+        data = dict(status, node_id=self.node_id, last_seen=time.time(),
+                    last_seen_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
+        atomic_write(self.nodes_dir / (self.node_id + ".json"), json_text(data))
+
+    def nodes(self):
+        out = {}
+        for path in sorted(self.nodes_dir.glob("*.json")):
+            try:
+                out[path.stem] = json.loads(path.read_text())
+            except (OSError, ValueError):
+                continue
+        return out
+
+
+# -- archives ----------------------------------------------------------------------------------
+
+def _move(src, dest):
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.rename(src, dest)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+        shutil.copy2(src, dest)      # another filesystem: copy, then remove the original
+        os.unlink(src)
+
+
+def archive(src, sidecar, dest_dir, name):
+    """Move an input (and its sidecar) to ``dest_dir`` under its original ``name``.
+
+    Returns (new input path, new sidecar path or None).
+    """
+    dest = unique_path(Path(dest_dir) / name)
+    _move(src, dest)
+    side = None
+    if sidecar and os.path.exists(sidecar):
+        side = unique_path(dest.with_name(dest.stem + ".yaml"))
+        _move(sidecar, side)
+    return dest, side
+
+
+def archive_done(src, sidecar, done_dir, name, when=None):
+    day = time.strftime("%Y-%m-%d", time.localtime(when))
+    return archive(src, sidecar, Path(done_dir) / day, name)
+
+
+def archive_failed(src, sidecar, failed_dir, name, reason):
+    """Move to ``failed/`` and write ``NAME.error.txt`` beside it; returns the paths."""
+    dest, side = archive(src, sidecar, failed_dir, name)
+    atomic_write(dest.with_name(dest.stem + ".error.txt"), reason.rstrip() + "\n")
+    return dest, side
+
+
+# -- plan cache --------------------------------------------------------------------------------
+
+class PlanCache:
+    """Finished plans by key under ``root`` (shared between nodes through the outbox)."""
+
+    def __init__(self, root):
+        self.root = Path(root)
+
+    def path(self, key):
+        return self.root / key
+
+    def get(self, key):
+        d = self.path(key)
+        return d if (d / "plan.json").is_file() else None
+
+    def staging(self, job_id):
+        d = self.root / (".tmp-" + job_id)
+        shutil.rmtree(d, ignore_errors=True)
+        d.mkdir(parents=True)
+        return d
+
+    def store(self, tmp, key, stem):
+        """Publish a finished plan folder; if another node got there first, keep theirs."""
+        atomic_write(Path(tmp) / "plan.json", json_text({"stem": stem, "key": key}))
+        try:
+            os.rename(tmp, self.path(key))
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return self.path(key)
+
+    def export(self, key, outdir, stem):
+        """Copy a cached plan's files to ``outdir`` renamed to ``stem``; returns G-code path."""
+        src = self.path(key)
+        cached = json.loads((src / "plan.json").read_text())["stem"]
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        gcode = None
+        for f in src.iterdir():
+            if f.name in ("plan.json", "result.json") or f.name.startswith("."):
+                continue
+            name = stem + f.name[len(cached):] if f.name.startswith(cached + ".") else f.name
+            dest = outdir / name
+            try:
+                os.link(f, dest)
+            except OSError:
+                shutil.copy2(f, dest)
+            if name.endswith(".gcode"):
+                gcode = dest
+        return gcode

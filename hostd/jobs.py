@@ -1,0 +1,259 @@
+"""The job store: one SQLite file (WAL) in ``state_dir``, shared by the daemon and the CLI.
+
+States: ``queued -> planning -> ready -> printing -> done | failed | cancelled |
+interrupted``. Every change is an event (``events`` table) so ``hostd job ID`` can tell
+the story. The ``control`` table is the terminal commands' door into a running
+daemon: the CLI inserts a request, the daemon carries it out and writes the result.
+"""
+
+import json
+import sqlite3
+import time
+import uuid
+from pathlib import Path
+
+from hostd.errors import HostdError
+
+QUEUED, PLANNING, READY, PRINTING = "queued", "planning", "ready", "printing"
+DONE, FAILED, CANCELLED, INTERRUPTED = "done", "failed", "cancelled", "interrupted"
+STATES = (QUEUED, PLANNING, READY, PRINTING, DONE, FAILED, CANCELLED, INTERRUPTED)
+ACTIVE = (QUEUED, PLANNING, READY, PRINTING)
+FINISHED = (DONE, FAILED, CANCELLED, INTERRUPTED)
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY,
+    name TEXT NOT NULL,            -- input file name as dropped
+    rel_path TEXT NOT NULL,        -- path inside drop_dir as dropped (subfolder/name)
+    input_path TEXT NOT NULL,      -- where the input is now (claimed, done or failed)
+    sidecar_path TEXT,             -- where its sidecar is now, if any
+    input_hash TEXT,
+    target TEXT,                   -- subfolder: printer or profile name, or NULL
+    profile TEXT,
+    printer TEXT,                  -- printer chosen when printing starts
+    priority INTEGER NOT NULL DEFAULT 0,
+    copies INTEGER NOT NULL DEFAULT 1,
+    copies_done INTEGER NOT NULL DEFAULT 0,
+    state TEXT NOT NULL,
+    progress REAL NOT NULL DEFAULT 0,
+    last_line INTEGER NOT NULL DEFAULT 0,
+    error TEXT,
+    error_code TEXT,
+    plan_key TEXT,
+    outbox TEXT,
+    node_id TEXT,
+    created_at REAL NOT NULL,
+    updated_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    seq INTEGER NOT NULL
+);
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    job_id TEXT NOT NULL,
+    at REAL NOT NULL,
+    kind TEXT NOT NULL,
+    message TEXT
+);
+CREATE INDEX IF NOT EXISTS events_job ON events(job_id);
+CREATE TABLE IF NOT EXISTS control (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    at REAL NOT NULL,
+    action TEXT NOT NULL,
+    target TEXT NOT NULL,
+    done_at REAL,
+    ok INTEGER,
+    result TEXT
+);
+CREATE TABLE IF NOT EXISTS printers (
+    name TEXT PRIMARY KEY,
+    state TEXT,
+    paused INTEGER NOT NULL DEFAULT 0,
+    job_id TEXT,
+    updated_at REAL
+);
+"""
+
+_FIELDS = ("name", "rel_path", "input_path", "sidecar_path", "input_hash", "target", "profile",
+           "printer", "priority", "copies", "copies_done", "state", "progress", "last_line",
+           "error", "error_code", "plan_key", "outbox", "node_id", "started_at", "finished_at")
+
+
+def new_job_id():
+    """Sortable, short and safe in paths: ``YYYYmmdd-HHMMSS-xxxxxx``."""
+    return time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + "-" + uuid.uuid4().hex[:6]
+
+
+class JobStore:
+    """Jobs, their events, printer flags and control requests in one SQLite file.
+
+    Each instance holds one connection; use one instance per thread.
+    """
+
+    def __init__(self, path, create=True):
+        self.path = Path(path)
+        if not create and not self.path.exists():
+            raise HostdError("no job database here", code="jobs.missing", file=self.path,
+                             fix="start the daemon once with `hostd run` (same --config)")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+        self.db.row_factory = sqlite3.Row
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=NORMAL")
+        self.db.executescript(_SCHEMA)
+
+    def close(self):
+        self.db.close()
+
+    # -- jobs ------------------------------------------------------------------------------
+
+    def add(self, name, rel_path, input_path, **values):
+        """Insert a queued job; returns its id."""
+        job_id = values.pop("id", None) or new_job_id()
+        now = time.time()
+        values = dict(values, name=name, rel_path=rel_path, input_path=str(input_path))
+        values.setdefault("state", QUEUED)
+        cols = ["id", "created_at", "updated_at", "seq"] + [k for k in values if k in _FIELDS]
+        with self.db:
+            self.db.execute("BEGIN IMMEDIATE")
+            seq = self.db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs").fetchone()[0]
+            row = [job_id, now, now, seq] + [values[k] for k in cols[4:]]
+            self.db.execute("INSERT INTO jobs (%s) VALUES (%s)" % (", ".join(cols),
+                                                                   ", ".join("?" * len(cols))), row)
+            self._event(job_id, "created", "%s queued (%s)" % (name, rel_path), now)
+        return job_id
+
+    def get(self, job_id):
+        row = self.db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        if row is None:
+            row = self.db.execute("SELECT * FROM jobs WHERE id LIKE ? ORDER BY seq",
+                                  (job_id + "%",)).fetchall()
+            row = row[0] if len(row) == 1 else None
+        return dict(row) if row else None
+
+    def require(self, job_id):
+        job = self.get(job_id)
+        if job is None:
+            raise HostdError("no job %r" % job_id, code="jobs.unknown",
+                             fix="list the jobs with `hostd jobs`")
+        return job
+
+    def update(self, job_id, event=None, **values):
+        """Set fields (and ``updated_at``); with ``event=(kind, message)`` log it too."""
+        bad = [k for k in values if k not in _FIELDS]
+        if bad:
+            raise ValueError("unknown job fields %s" % bad)
+        now = time.time()
+        sets = ", ".join(["updated_at = ?"] + ["%s = ?" % k for k in values])
+        with self.db:
+            self.db.execute("BEGIN IMMEDIATE")
+            self.db.execute("UPDATE jobs SET %s WHERE id = ?" % sets,
+                            [now] + list(values.values()) + [job_id])
+            if event:
+                self._event(job_id, event[0], event[1], now)
+
+    def set_state(self, job_id, state, message=None, **values):
+        if state not in STATES:
+            raise ValueError(state)
+        if state in FINISHED:
+            values.setdefault("finished_at", time.time())
+        self.update(job_id, event=(state, message or state), state=state, **values)
+
+    def list(self, state=None, limit=None):
+        sql, args = "SELECT * FROM jobs", []
+        if state:
+            states = [state] if isinstance(state, str) else list(state)
+            sql += " WHERE state IN (%s)" % ", ".join("?" * len(states))
+            args += states
+        sql += " ORDER BY seq"
+        if limit:
+            sql += " LIMIT %d" % int(limit)
+        return [dict(r) for r in self.db.execute(sql, args)]
+
+    def next_in_order(self, state):
+        """Jobs in ``state`` by priority (high first), then arrival."""
+        return [dict(r) for r in self.db.execute(
+            "SELECT * FROM jobs WHERE state = ? ORDER BY priority DESC, seq", (state,))]
+
+    def find_active(self, rel_path):
+        row = self.db.execute("SELECT id FROM jobs WHERE rel_path = ? AND state IN (%s)"
+                              % ", ".join("?" * len(ACTIVE)), (rel_path,) + ACTIVE).fetchone()
+        return row[0] if row else None
+
+    def recover(self):
+        """After a restart: planning -> queued; printing -> interrupted. Returns changed ids."""
+        changed = []
+        for job in self.list(PLANNING):
+            self.set_state(job["id"], QUEUED, "daemon restarted while planning: planning again")
+            changed.append(job["id"])
+        for job in self.list(PRINTING):
+            self.set_state(job["id"], INTERRUPTED,
+                           "daemon stopped while printing (line %d): check the bed, then "
+                           "`hostd requeue %s`" % (job["last_line"], job["id"]),
+                           error="the print was interrupted (daemon stopped or crashed)",
+                           error_code="job.interrupted")
+            changed.append(job["id"])
+        return changed
+
+    # -- events ------------------------------------------------------------------------------
+
+    def _event(self, job_id, kind, message, at=None):
+        self.db.execute("INSERT INTO events (job_id, at, kind, message) VALUES (?, ?, ?, ?)",
+                        (job_id, at or time.time(), kind, message))
+
+    def event(self, job_id, kind, message):
+        with self.db:
+            self._event(job_id, kind, message)
+
+    def events(self, job_id):
+        return [dict(r) for r in self.db.execute(
+            "SELECT at, kind, message FROM events WHERE job_id = ? ORDER BY id", (job_id,))]
+
+    # -- printers --------------------------------------------------------------------------
+
+    def set_printer(self, name, **values):
+        now = time.time()
+        self.db.execute("INSERT INTO printers (name, updated_at) VALUES (?, ?) "
+                        "ON CONFLICT(name) DO UPDATE SET updated_at = excluded.updated_at",
+                        (name, now))
+        if values:
+            sets = ", ".join("%s = ?" % k for k in values)
+            self.db.execute("UPDATE printers SET %s WHERE name = ?" % sets,
+                            list(values.values()) + [name])
+
+    def printers(self):
+        return {r["name"]: dict(r) for r in self.db.execute("SELECT * FROM printers")}
+
+    # -- control requests (CLI -> daemon) --------------------------------------------------
+
+    def request(self, action, target):
+        with self.db:
+            cur = self.db.execute("INSERT INTO control (at, action, target) VALUES (?, ?, ?)",
+                                  (time.time(), action, target))
+        return cur.lastrowid
+
+    def pending_requests(self):
+        return [dict(r) for r in self.db.execute(
+            "SELECT * FROM control WHERE done_at IS NULL ORDER BY id")]
+
+    def answer(self, request_id, ok, result):
+        self.db.execute("UPDATE control SET done_at = ?, ok = ?, result = ? WHERE id = ?",
+                        (time.time(), int(bool(ok)), result, request_id))
+
+    def wait_answer(self, request_id, timeout_s=15.0, poll_s=0.05):
+        """(ok, result) once the daemon answered, or None after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            row = self.db.execute("SELECT ok, result FROM control WHERE id = ? AND done_at IS "
+                                  "NOT NULL", (request_id,)).fetchone()
+            if row:
+                return bool(row["ok"]), row["result"]
+            time.sleep(poll_s)
+        return None
+
+
+def summary(job):
+    """A JSON-ready subset of a job row for status files and the web page."""
+    keys = ("id", "name", "state", "printer", "profile", "progress", "priority", "error")
+    return json.loads(json.dumps({k: job.get(k) for k in keys}))

@@ -1,0 +1,120 @@
+"""Planning in worker processes, so the GIL never stalls serial streaming.
+
+Each plan runs in its own child (``python -m hostd.planning``), which limits its
+address space (RLIMIT_AS) and CPU time (RLIMIT_CPU) before importing anything heavy;
+the parent also kills it after ``time_limit_s`` of wall time. A plan that crashes,
+runs out of memory or runs away fails its own job only. The child writes
+``result.json`` into its output folder: ``{"ok": true}`` or the error's dict.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+_REPO = str(Path(__file__).resolve().parents[1])
+
+
+class PlanProcess:
+    """One running plan: ``poll()`` -> None while running, else a result dict."""
+
+    def __init__(self, job_id, input_path, profile, outdir, time_limit_s, memory_mb):
+        self.job_id = job_id
+        self.outdir = Path(outdir)
+        self.time_limit_s = float(time_limit_s)
+        self.started = time.monotonic()
+        args = json.dumps({"input": str(input_path), "profile": profile, "outdir": str(outdir),
+                           "memory_mb": int(memory_mb), "cpu_s": int(time_limit_s) + 5})
+        env = dict(os.environ)
+        env["PYTHONPATH"] = _REPO + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        # Few threads per child: several plans must not starve the streaming thread.
+        env.setdefault("OMP_NUM_THREADS", "1")
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
+        self.proc = subprocess.Popen([sys.executable, "-m", "hostd.planning", args],
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE, env=env, start_new_session=True)
+        self.pid = self.proc.pid
+
+    def poll(self):
+        code = self.proc.poll()
+        if code is None:
+            if time.monotonic() - self.started > self.time_limit_s:
+                self.kill()
+                return {"ok": False, "code": "plan.time_limit",
+                        "text": "planning took longer than the limit of %.0f s and was stopped"
+                                % self.time_limit_s,
+                        "fix": "use a smaller or simpler height field, or raise "
+                               "planning.time_limit_s in hostd.yaml"}
+            return None
+        stderr = self.proc.stderr.read().decode("utf-8", "replace") if self.proc.stderr else ""
+        self.proc.stderr.close()
+        result = _read_result(self.outdir / "result.json")
+        if result is not None:
+            return result
+        if code < 0:
+            how = "was killed by signal %d" % -code
+        else:
+            how = "exited with status %d" % code
+        tail = stderr.strip().splitlines()[-1:] if stderr.strip() else []
+        memory = "MemoryError" in stderr
+        return {"ok": False, "code": "plan.memory_limit" if memory else "plan.crashed",
+                "text": "the planning process %s%s" % (
+                    "ran out of memory (limit reached)" if memory else how,
+                    (": " + tail[0]) if tail and not memory else ""),
+                "fix": "raise planning.memory_mb in hostd.yaml or use a smaller input"
+                       if memory else "try again with `hostd requeue`; report it if it repeats"}
+
+    def kill(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+        if self.proc.stderr and not self.proc.stderr.closed:
+            self.proc.stderr.close()
+
+
+def _read_result(path):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _limit(memory_mb, cpu_s):
+    import resource
+    if memory_mb:
+        limit = int(memory_mb) * 1024 * 1024
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    if cpu_s:
+        resource.setrlimit(resource.RLIMIT_CPU, (int(cpu_s), int(cpu_s) + 2))
+
+
+def child_main(argv):
+    args = json.loads(argv[0])
+    _limit(args.get("memory_mb"), args.get("cpu_s"))
+    try:
+        os.nice(5)   # the streaming thread in the parent comes first
+    except OSError:
+        pass
+    outdir = Path(args["outdir"])
+    from hostd.outputs import atomic_write, json_text
+    from pipeline.errors import PipelineError
+    try:
+        from hostd import planner
+        from pipeline.profile import load_profile
+        profile = load_profile(args["profile"])
+        planner.run(args["input"], profile, outdir)
+        result = {"ok": True}
+    except PipelineError as exc:
+        result = dict(exc.to_dict(), ok=False)
+    except MemoryError:
+        result = {"ok": False, "code": "plan.memory_limit",
+                  "text": "planning ran out of memory (limit %s MB)" % args.get("memory_mb"),
+                  "fix": "raise planning.memory_mb in hostd.yaml or use a smaller input"}
+    atomic_write(outdir / "result.json", json_text(result))
+    return 0 if result["ok"] else 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(child_main(sys.argv[1:]))
