@@ -1,0 +1,88 @@
+"""The SQLite job store: states, order, events, restart recovery, control requests."""
+
+import sqlite3
+
+import pytest
+
+from hostd import jobs as J
+from hostd.errors import HostdError
+
+
+@pytest.fixture
+def store(tmp_path):
+    s = J.JobStore(tmp_path / "jobs.sqlite")
+    yield s
+    s.close()
+
+
+def test_wal_and_lifecycle(store, tmp_path):
+    assert store.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    jid = store.add("a.png", "a.png", tmp_path / "a.png", profile="p")
+    assert store.get(jid)["state"] == J.QUEUED
+    for state in (J.PLANNING, J.READY, J.PRINTING):
+        store.set_state(jid, state)
+    store.update(jid, progress=0.5, last_line=120)
+    store.set_state(jid, J.DONE, "printed")
+    job = store.get(jid)
+    assert job["state"] == J.DONE and job["finished_at"] and job["progress"] == 0.5
+    kinds = [e["kind"] for e in store.events(jid)]
+    assert kinds == ["created", "planning", "ready", "printing", "done"]
+    assert store.get(jid[:-2])["id"] == jid      # a unique prefix finds it
+    with pytest.raises(HostdError):
+        store.require("nope")
+
+
+def test_priority_then_arrival(store, tmp_path):
+    ids = [store.add(n, n, tmp_path / n, priority=p)
+           for n, p in (("a", 0), ("b", 5), ("c", 0), ("d", 5))]
+    order = [j["name"] for j in store.next_in_order(J.QUEUED)]
+    assert order == ["b", "d", "a", "c"]
+    assert len(set(ids)) == 4
+
+
+def test_recovery_after_a_crash(tmp_path):
+    path = tmp_path / "jobs.sqlite"
+    s = J.JobStore(path)
+    q = s.add("q", "q", "q")
+    p = s.add("p", "p", "p")
+    s.set_state(p, J.PLANNING)
+    r = s.add("r", "r", "r")
+    s.set_state(r, J.PRINTING)
+    s.update(r, last_line=77)
+    # kill -9: no close, a second connection takes over
+    s2 = J.JobStore(path)
+    changed = s2.recover()
+    assert set(changed) == {p, r}
+    assert s2.get(q)["state"] == J.QUEUED
+    assert s2.get(p)["state"] == J.QUEUED
+    job = s2.get(r)
+    assert job["state"] == J.INTERRUPTED and job["error_code"] == "job.interrupted"
+    assert "requeue" in s2.events(r)[-1]["message"]
+
+
+def test_control_requests_round_trip(tmp_path):
+    daemon = J.JobStore(tmp_path / "jobs.sqlite")
+    cli = J.JobStore(tmp_path / "jobs.sqlite")
+    req = cli.request("pause", "p1")
+    assert cli.wait_answer(req, timeout_s=0.1) is None
+    [pending] = daemon.pending_requests()
+    assert (pending["action"], pending["target"]) == ("pause", "p1")
+    daemon.answer(pending["id"], True, "paused p1")
+    assert cli.wait_answer(req) == (True, "paused p1")
+    assert daemon.pending_requests() == []
+
+
+def test_missing_database_is_a_clear_error(tmp_path):
+    with pytest.raises(HostdError) as err:
+        J.JobStore(tmp_path / "none.sqlite", create=False)
+    assert "hostd run" in err.value.text()
+
+
+def test_unknown_fields_and_states_are_refused(store):
+    jid = store.add("a", "a", "a")
+    with pytest.raises(ValueError):
+        store.update(jid, colour="red")
+    with pytest.raises(ValueError):
+        store.set_state(jid, "exploded")
+    with pytest.raises(sqlite3.Error):
+        store.db.execute("SELECT nope FROM jobs")
