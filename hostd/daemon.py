@@ -163,7 +163,12 @@ class Daemon:
         self.setup()
         try:
             while not self.stop_event.is_set():
-                self.tick()
+                try:
+                    self.tick()
+                except Exception:
+                    # One bad job or a flaky share must not take every printer down with it.
+                    log.exception("error in the run loop; carrying on")
+                    self.stop_event.wait(1.0)
                 self.stop_event.wait(TICK_S)
         finally:
             self.shutdown()

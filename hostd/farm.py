@@ -253,6 +253,8 @@ class PlanCache:
                 continue
             name = stem + f.name[len(cached):] if f.name.startswith(cached + ".") else f.name
             dest = outdir / name
+            if os.path.lexists(dest):
+                os.unlink(dest)      # requeued: the same plan exported again
             try:
                 os.link(f, dest)
             except OSError:

@@ -1,0 +1,122 @@
+"""Helpers for the daemon end-to-end tests: inputs, configs, daemon processes, simulators."""
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST_SIM = dict(time_scale=0.0, advanced_ok=True, boot_s=0.0, baud=2000000)
+
+
+def write_dome(path, diameter_mm=15, height_mm=3):
+    """A small dome ``.npy`` (heights in mm) with its ``pixel_mm`` sidecar; returns the path."""
+    from pipeline import shapes
+    hf = shapes.dome(diameter_mm=diameter_mm, height_mm=height_mm)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.save(path, hf.z)
+    path.with_name(path.stem + ".yaml").write_text("pixel_mm: %r\n" % float(hf.pixel_mm))
+    return path
+
+
+def write_config(folder, node_id="n1", printers=None, share=None, **extra):
+    """A hostd.yaml in ``folder``; the share (drop/outbox/done/failed) may be shared."""
+    folder = Path(folder)
+    share = Path(share or folder / "share")
+    data = dict(node_id=node_id, drop_dir=str(share / "drop"), state_dir=str(folder / "state"),
+                outbox_dir=str(share / "outbox"), done_dir=str(share / "done"),
+                failed_dir=str(share / "failed"), settle_s=0.5, poll_s=0.2, heartbeat_s=0.5,
+                lease_s=30.0, stop_timeout_s=10.0,
+                printers=printers or [{"name": "p1", "profile": "generic-0.5mm",
+                                       "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0",
+                                       "baud": 2000000}])
+    data.update(extra)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "hostd.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def hostd(*args, timeout=60, **kw):
+    return subprocess.run([sys.executable, "-m", "hostd", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout, **kw)
+
+
+class DaemonProcess:
+    """``hostd run -c CONFIG`` as a real process; its output goes to ``log``."""
+
+    def __init__(self, config, env=None):
+        self.config = Path(config)
+        self.log = self.config.with_name("daemon-%d.log" % time.monotonic_ns())
+        self._out = open(self.log, "w")
+        self.proc = subprocess.Popen([sys.executable, "-m", "hostd", "run", "-c", str(config)],
+                                     cwd=ROOT, stdout=self._out, stderr=subprocess.STDOUT,
+                                     env=dict(os.environ, **(env or {})))
+
+    def stop(self, sig=signal.SIGTERM, timeout=30):
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout)
+        finally:
+            self._out.close()
+
+    def output(self):
+        return self.log.read_text()
+
+
+@contextlib.contextmanager
+def daemon(config, env=None):
+    d = DaemonProcess(config, env)
+    try:
+        yield d
+    finally:
+        if d.proc.poll() is None:
+            d.stop(signal.SIGKILL)
+        else:
+            d._out.close()
+
+
+def jobs(config):
+    """Stored jobs as dicts (read-only; works with or without a daemon)."""
+    r = hostd("jobs", "--json", "-c", config)
+    if r.returncode == 2 and "jobs.missing" in r.stderr:
+        return []    # the daemon has not created its store yet
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+def wait_for(predicate, timeout=60, what="condition", proc=None):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        if proc is not None and proc.proc.poll() is not None:
+            raise AssertionError("daemon exited (%s) waiting for %s:\n%s"
+                                 % (proc.proc.returncode, what, proc.output()[-3000:]))
+        time.sleep(0.2)
+    raise AssertionError("timed out waiting for %s%s" % (
+        what, ("\n" + proc.output()[-3000:]) if proc else ""))
+
+
+def states(config):
+    return {j["name"]: j["state"] for j in jobs(config)}
+
+
+def gcode_commands(path):
+    from hostd.printer.protocol import clean
+    with open(path) as f:
+        return [c for c in (clean(line) for line in f) if c]
+
+
+def all_files(folder):
+    return sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*") if p.is_file())

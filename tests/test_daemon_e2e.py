@@ -1,0 +1,202 @@
+"""`hostd run` end to end: real files, real processes, the simulator on a pty."""
+
+import os
+import shutil
+import signal
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon_helpers import (FAST_SIM, all_files, daemon, gcode_commands, hostd, jobs, states,
+                            wait_for, write_config, write_dome)
+from printer_helpers import job_commands
+
+
+@pytest.fixture(scope="module")
+def dome(tmp_path_factory):
+    return write_dome(tmp_path_factory.mktemp("inputs") / "dome.npy")
+
+
+@pytest.fixture
+def pty_sim():
+    """A simulator on a real pty in this process (its executed commands are readable)."""
+    from hostd.printer.sim import Simulator
+    from hostd.printer.simconfig import SimConfig
+    folder = tempfile.mkdtemp(prefix="hostd-e2e-")
+    sim = Simulator(SimConfig(**FAST_SIM), link_path=os.path.join(folder, "printer"))
+    path = sim.start()
+    yield sim, path
+    sim.stop()
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def drop(src, drop_dir, name):
+    """Copy ``src`` (and sidecar) into the drop folder the way a careful client does."""
+    drop_dir.mkdir(parents=True, exist_ok=True)
+    side = src.with_name(src.stem + ".yaml")
+    if side.exists():
+        shutil.copy(side, drop_dir / (Path(name).stem + ".yaml"))
+    shutil.copy(src, drop_dir / (name + ".part"))
+    os.rename(drop_dir / (name + ".part"), drop_dir / name)
+
+
+@pytest.mark.slow
+def test_three_files_one_invalid(tmp_path, dome, pty_sim):
+    sim, port = pty_sim
+    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+                                            "port": port, "baud": 250000}])
+    share = tmp_path / "share"
+    with daemon(cfg) as d:
+        drop(dome, share / "drop", "first.npy")
+        drop(dome, share / "drop", "second.npy")
+        (share / "drop" / "broken.png").write_bytes(b"this is not a picture")
+        wait_for(lambda: sorted(states(cfg).values()) == ["done", "done", "failed"],
+                 timeout=120, what="two printed, one failed", proc=d)
+        assert d.stop() == 0
+    done = {j["name"]: j for j in jobs(cfg)}
+    printed = sorted((j for j in done.values() if j["state"] == "done"),
+                     key=lambda j: j["started_at"])
+    expected = []
+    for job in printed:
+        expected += gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
+    assert job_commands(sim) == expected
+    failed = share / "failed"
+    reason = (failed / "broken.error.txt").read_text()
+    assert "not .png data" in reason and "Fix:" in reason and ".claimed" not in reason
+    assert (failed / "broken.png").read_bytes() == b"this is not a picture"
+    day = time.strftime("%Y-%m-%d")
+    for name in ("first", "second"):
+        assert (share / "done" / day / (name + ".npy")).read_bytes() == dome.read_bytes()
+        assert (share / "done" / day / (name + ".yaml")).exists()
+    assert not [f for f in all_files(share / "drop") if not f.startswith(".")]
+
+
+def test_slow_copy_is_not_taken_early(tmp_path, dome):
+    cfg = write_config(tmp_path, settle_s=1.0, poll_s=0.1)
+    drop_dir = tmp_path / "share" / "drop"
+    data = dome.read_bytes()
+    with daemon(cfg) as d:
+        wait_for(lambda: (tmp_path / "state" / "jobs.sqlite").exists(), what="daemon up", proc=d)
+        shutil.copy(dome.with_name("dome.yaml"), drop_dir / "slow.yaml")
+        chunks = 6
+        with open(drop_dir / "slow.npy", "wb") as f:
+            for i in range(chunks):
+                f.write(data[i * len(data) // chunks:(i + 1) * len(data) // chunks])
+                f.flush()
+                time.sleep(0.6)
+                assert jobs(cfg) == [], "taken before the copy was complete"
+        [job] = wait_for(lambda: jobs(cfg), timeout=20, what="job", proc=d)
+        wait_for(lambda: jobs(cfg)[0]["input_hash"], what="hash", proc=d)
+        import hashlib
+        assert jobs(cfg)[0]["input_hash"] == hashlib.sha256(data).hexdigest()
+        assert d.stop() == 0
+
+
+def test_bad_config_and_bad_sidecar(tmp_path, dome):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("node_id: x\npoll_s: often\n")
+    r = hostd("run", "--config", bad, timeout=30)
+    assert r.returncode == 2 and "poll_s" in r.stderr and str(bad) in r.stderr
+    cfg = write_config(tmp_path / "n")
+    drop_dir = tmp_path / "n" / "share" / "drop"
+    with daemon(cfg) as d:
+        drop_dir.mkdir(parents=True, exist_ok=True)
+        (drop_dir / "odd.yaml").write_text("size_mm: big\n")
+        shutil.copy(dome, drop_dir / "odd.npy")
+        wait_for(lambda: states(cfg).get("odd.npy") == "failed", timeout=30, what="fail", proc=d)
+        reason = (tmp_path / "n" / "share" / "failed" / "odd.error.txt").read_text()
+        assert "size_mm" in reason and "odd.yaml" in reason
+        assert (tmp_path / "n" / "share" / "failed" / "odd.yaml").exists()
+        # A second daemon on the same state folder is refused clearly.
+        r = hostd("run", "--config", cfg, timeout=30)
+        assert r.returncode == 2 and "already runs" in r.stderr
+        assert d.stop() == 0
+    r = hostd("pause", "p1", "-c", cfg)
+    assert r.returncode == 2 and "no hostd daemon runs" in r.stderr
+
+
+@pytest.mark.slow
+def test_crashing_plan_fails_its_job_only(tmp_path, dome):
+    cfg = write_config(tmp_path, planning={"workers": 2})
+    drop_dir = tmp_path / "share" / "drop"
+    crash = write_dome(tmp_path / "in" / "tiny.npy", diameter_mm=10, height_mm=2)
+    with daemon(cfg) as d:
+        drop(crash, drop_dir, "tiny.npy")
+        drop(dome, drop_dir, "good.npy")
+        wait_for(lambda: states(cfg) == {"tiny.npy": "failed", "good.npy": "done"}
+                 or states(cfg).get("good.npy") == "failed", timeout=90, what="done", proc=d)
+        assert states(cfg)["good.npy"] == "done"
+        reason = (tmp_path / "share" / "failed" / "tiny.error.txt").read_text()
+        assert "planning process" in reason or "error" in reason.lower()
+        assert d.stop() == 0
+
+
+@pytest.mark.slow
+def test_kill_during_planning_then_restart_completes(tmp_path, dome):
+    cfg = write_config(tmp_path)
+    with daemon(cfg) as d:
+        drop(dome, tmp_path / "share" / "drop", "dome.npy")
+        wait_for(lambda: states(cfg).get("dome.npy") == "planning", timeout=20, proc=d,
+                 what="planning")
+        d.stop(signal.SIGKILL)
+    assert states(cfg) == {"dome.npy": "planning"}
+    with daemon(cfg) as d:
+        wait_for(lambda: states(cfg) == {"dome.npy": "done"}, timeout=90, what="done", proc=d)
+        assert d.stop() == 0
+    kinds = [e for e in hostd("job", jobs(cfg)[0]["id"], "-c", cfg).stdout.splitlines()]
+    assert any("restarted while planning" in k for k in kinds)
+
+
+@pytest.mark.slow
+def test_kill_during_printing_then_restart_is_interrupted(tmp_path, dome):
+    slow = [{"name": "p1", "profile": "generic-0.5mm", "baud": 250000,
+             "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0&baud=115200"}]
+    cfg = write_config(tmp_path, printers=slow)
+    with daemon(cfg) as d:
+        drop(dome, tmp_path / "share" / "drop", "dome.npy")
+        wait_for(lambda: states(cfg).get("dome.npy") == "printing", timeout=60, proc=d,
+                 what="printing")
+        d.stop(signal.SIGKILL)
+    with daemon(cfg) as d:
+        wait_for(lambda: states(cfg) == {"dome.npy": "interrupted"}, timeout=20, proc=d,
+                 what="interrupted")
+        failed = tmp_path / "share" / "failed"
+        assert (failed / "dome.npy").read_bytes() == dome.read_bytes()
+        assert "requeue" in (failed / "dome.error.txt").read_text()
+        # a person requeues it: the cached plan is printed again
+        job_id = jobs(cfg)[0]["id"]
+        r = hostd("requeue", job_id, "-c", cfg)
+        assert r.returncode == 0, r.stderr
+        wait_for(lambda: states(cfg) == {"dome.npy": "printing"}, timeout=30, proc=d,
+                 what="printing again")
+        # SIGTERM during a print: stop feeding, park, interrupted, clean exit
+        t = time.monotonic()
+        assert d.stop() == 0
+        assert time.monotonic() - t < 10.0
+    assert states(cfg) == {"dome.npy": "interrupted"}
+    assert (tmp_path / "share" / "failed" / "dome.npy").exists()
+
+
+@pytest.mark.slow
+def test_two_daemons_share_one_drop_folder(tmp_path, dome):
+    share = tmp_path / "share"
+    cfg_a = write_config(tmp_path / "a", node_id="a", share=share)
+    cfg_b = write_config(tmp_path / "b", node_id="b", share=share)
+    names = ["f%02d.npy" % i for i in range(10)]
+    with daemon(cfg_a) as a, daemon(cfg_b) as b:
+        for name in names:
+            drop(dome, share / "drop", name)
+
+        def finished():
+            sa, sb = states(cfg_a), states(cfg_b)
+            return len(sa) + len(sb) == 10 and set(sa.values()) | set(sb.values()) == {"done"}
+        wait_for(finished, timeout=170, what="10 printed", proc=a)
+        assert a.stop() == 0 and b.stop() == 0
+    printed = [j["name"] for j in jobs(cfg_a) + jobs(cfg_b)]
+    assert sorted(printed) == names           # each exactly once
+    day = share / "done" / time.strftime("%Y-%m-%d")
+    assert sorted(p.name for p in day.glob("*.npy")) == names
+    nodes = {p.stem for p in (share / "drop" / ".hostd" / "nodes").glob("*.json")}
+    assert nodes == {"a", "b"}
