@@ -1,0 +1,77 @@
+"""systemd units: required hardening and notify settings; systemd-analyze verify if present."""
+
+import configparser
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hostd.config import load_config
+from hostd.planning import PlanProcess
+
+SYSTEMD = Path(__file__).resolve().parents[1] / "systemd"
+ROOT = SYSTEMD.parent
+
+
+def _unit(name):
+    parser = configparser.ConfigParser(strict=False, interpolation=None)
+    parser.optionxform = str
+    parser.read(SYSTEMD / name)
+    return parser
+
+
+@pytest.mark.parametrize("name", ["hostd.service", "hostd@.service"])
+def test_unit_settings(name):
+    s = _unit(name)["Service"]
+    assert s["Type"] == "notify" and s["Restart"] == "on-failure"
+    assert int(s["WatchdogSec"]) > 0 and s["User"] == "hostd"
+    assert "dialout" in s["SupplementaryGroups"]
+    for key in ("NoNewPrivileges", "ProtectHome", "PrivateTmp"):
+        assert s[key] == "yes"
+    assert s["ProtectSystem"] == "strict" and s["ReadWritePaths"]
+    assert "hostd run --config" in s["ExecStart"]
+
+
+def test_udev_rule_and_example_config(tmp_path):
+    rule = (SYSTEMD / "99-hostd-printers.rules").read_text()
+    assert 'SYMLINK+="printer/' in rule and 'TAG+="systemd"' in rule
+    config = load_config(ROOT / "docs" / "hostd.example.yaml")
+    assert config.printers[0].port == "/dev/printer/mk3-left"
+
+
+@pytest.mark.skipif(not shutil.which("systemd-analyze"), reason="systemd-analyze not available")
+@pytest.mark.parametrize("name", ["hostd.service", "hostd@.service"])
+def test_systemd_analyze_verify(tmp_path, name):
+    text = (SYSTEMD / name).read_text().replace("/opt/hostd/.venv/bin/hostd", sys.executable)
+    target = tmp_path / (name.replace("@", "@test") if "@" in name else name)
+    target.write_text(text)
+    r = subprocess.run(["systemd-analyze", "verify", str(target)], capture_output=True,
+                       text=True, timeout=60)
+    problems = [line for line in (r.stdout + r.stderr).splitlines()
+                if str(target.name) in line and "dev-printer" not in line
+                and "Failed to" not in line]
+    assert problems == [], problems
+
+
+def test_plan_time_limit_stops_the_process(tmp_path):
+    src = tmp_path / "x.npy"
+    src.write_bytes(b"\x93NUMPY")
+    proc = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "out", time_limit_s=0.05,
+                       memory_mb=4096)
+    import time
+    while (result := proc.poll()) is None:
+        time.sleep(0.02)
+    assert result["code"] == "plan.time_limit" and "limit" in result["text"]
+    assert proc.proc.poll() is not None
+
+
+def test_plan_memory_limit_fails_the_plan(tmp_path):
+    from daemon_helpers import write_dome
+    src = write_dome(tmp_path / "dome.npy", diameter_mm=15, height_mm=3)
+    proc = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "out", time_limit_s=120,
+                       memory_mb=200)
+    proc.proc.wait(120)
+    result = proc.poll()
+    assert not result["ok"] and result["code"] in ("plan.memory_limit", "plan.crashed")
