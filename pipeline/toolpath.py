@@ -66,8 +66,11 @@ def path_field(xy, faces, level, path_width_mm):
     has_dir = norm > 1e-9
     target = np.where(has_dir[:, None], glevel / np.maximum(norm, 1e-12)[:, None], 0.0)
     target /= path_width_mm
-    # Faces with no isoline direction (rare) only smooth the field.
+    # Faces with no isoline direction (rare) only smooth the field; collapsed
+    # faces (a folded layout) carry no gradient at all.
     w = np.abs(area) * np.where(has_dir, 1.0, 1e-3)
+    w[np.abs(area) <= 1e-12] = 0.0
+    gphi[np.abs(area) <= 1e-12] = 0.0
     m = len(faces)
     rows = np.stack([np.arange(m) * 2, np.arange(m) * 2 + 1], axis=1)[:, None, :]
     rows = np.broadcast_to(rows, (m, 3, 2))
@@ -83,7 +86,8 @@ def path_field(xy, faces, level, path_width_mm):
     loop = boundary_loop(faces)
     if np.ptp(level[loop]) < 1e-9:
         fixed = loop
-    penalty = np.zeros(n)
+    # A tiny ridge keeps vertices that only touch collapsed faces determined.
+    penalty = np.full(n, 1e-9 * float(L.diagonal().mean()))
     penalty[fixed] = 1e6 * float(L.diagonal().mean())
     L = (L + sp.diags(penalty)).tocsc()
     # L is symmetric positive definite: keep the fill-reducing order, no pivoting

@@ -144,10 +144,10 @@ def test_sidecar_overrides_the_simplification_settings(tmp_path):
 
 @pytest.mark.slow
 def test_real_terrain_plans_and_says_whether_it_is_printable(terrain_dir, tmp_path):
-    src = terrain_dir / "coast_mountains_bc.png"
+    src = terrain_dir / "vancouver_island_south.png"
     r = hostd("plan", src, "-o", tmp_path)
     assert r.returncode in (0, 4), r.stderr
-    report = json.loads((tmp_path / "coast_mountains_bc.report.json").read_text())
+    report = json.loads((tmp_path / "vancouver_island_south.report.json").read_text())
     check_contract(report, CONTRACT)
     assert report["heightfield"]["filled_pits"] > 0          # real pits, filled per its sidecar
     assert report["mesh"]["isolines"] > report["mesh"]["peaks"]
