@@ -68,12 +68,19 @@ def test_resend_after_timeout_keeps_accepted_lines_only():
     assert honoured and accepted == [] and flow.cursor == 3
 
 
-def test_resend_of_an_acknowledged_line_is_refused():
+def test_resend_of_an_acknowledged_line_is_replayed_and_counted():
     flow = make_flow()
     send(flow, 2)
-    flow.on_ok(3)
+    flow.on_ok(3)       # in truth the ok of something else: line 3 never arrived
+    accepted, honoured = flow.on_resend(3, now=1.0)
+    assert honoured and flow.cursor == 3
+    assert flow.stats["misattributed_oks"] == 1
+
+
+def test_resend_of_a_line_no_longer_in_history_is_an_error():
+    flow = make_flow()
     with pytest.raises(PrinterError) as err:
-        flow.on_resend(3, now=1.0)
+        flow.on_resend(1, now=1.0)
     assert err.value.code == "resend"
 
 

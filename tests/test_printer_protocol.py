@@ -79,6 +79,7 @@ def test_capabilities_and_firmware_info():
 def test_gcode_words():
     assert words("G01 X1.5 F600") == ("G1", {"X": 1.5, "F": 600.0})
     assert words("M104 S200")[0] == "M104" and words("T0")[0] == "T0"
+    assert words("45 G1 X1")[0] == ""      # tail of a cut line: not a command
 
 
 def test_sim_url_options():

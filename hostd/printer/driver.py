@@ -324,6 +324,8 @@ class Driver:
                         self._serial.write(b"M108\n")
                     except (serial.SerialException, OSError) as exc:
                         raise _PortLost("write failed: %s" % exc) from exc
+                if not self.capabilities.get("ADVANCED_OK"):
+                    self._flow.expect_foreign_ok()   # M108 is answered by a plain ok too
         return job.phase
 
     def _do_send(self, command):
@@ -367,7 +369,8 @@ class Driver:
             self.temperatures.update(reply.temps, time.time())
             self._emit("temperature", temps=self.temperatures.current())
         if kind == protocol.OK:
-            confirmed = self._flow.on_ok(reply.line)
+            unnumbered = reply.line is None and reply.planner_free is not None
+            confirmed = self._flow.on_ok(reply.line, unnumbered)
             if confirmed is not None:
                 self._timeouts = 0
                 for sent in confirmed:
@@ -393,8 +396,8 @@ class Driver:
             if self._state not in (CONNECTING, ERROR_STATE):
                 raise _PortLost("printer reset unexpectedly (got 'start')")
         elif kind in (protocol.ECHO, protocol.OTHER, protocol.FIRMWARE):
-            if protocol.is_fragment_echo(reply.text):
-                self._flow.on_fragment()
+            if protocol.is_fragment_echo(reply.text) and not self.capabilities.get("ADVANCED_OK"):
+                self._flow.expect_foreign_ok()   # (with ADVANCED_OK its ok lacks N: on_ok knows)
             self._emit("log", text=reply.text)
         # BUSY: a sign of life only (it resets the answer timeout above).
 

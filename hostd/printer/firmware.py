@@ -43,8 +43,15 @@ _KNOWN = {"G0", "G1", "G2", "G3", "G4", "G21", "G28", "G90", "G91", "G92", "M17"
 
 
 def words(command):
-    """Split ``G1 X1.5 F600`` into ('G1', {'X': 1.5, 'F': 600.0})."""
-    pairs = _WORD_RE.findall(command.split(";")[0])
+    """Split ``G1 X1.5 F600`` into ('G1', {'X': 1.5, 'F': 600.0}).
+
+    Like Marlin's parser the command letter must come first: ``45 G1 X1`` (the tail of a
+    line cut in two) is not a G1 but an unknown command, code ''.
+    """
+    text = command.split(";")[0].lstrip()
+    if not text[:1].isalpha():
+        return "", {}
+    pairs = _WORD_RE.findall(text)
     if not pairs:
         return "", {}
     code = pairs[0][0].upper() + pairs[0][1].lstrip("+").split(".")[0].lstrip("0") or "0"

@@ -124,9 +124,17 @@ class LineFlow:
 
     # -- answers -------------------------------------------------------------------------
 
-    def on_ok(self, line):
-        """An ok (``line`` from ADVANCED_OK or None); return the Sent lines it confirms."""
+    def on_ok(self, line, unnumbered=False):
+        """An ok; return the Sent lines it confirms (None: it answers nothing of ours).
+
+        ``line`` is the ADVANCED_OK ``N``; ``unnumbered`` marks an ADVANCED_OK answer
+        without ``N``: the firmware ran a line without number (our M108, or the tail of
+        a line cut by its flush), which is not in our books.
+        """
         self.stats["oks"] += 1
+        if unnumbered:
+            self.stats["unnumbered_oks"] = self.stats.get("unnumbered_oks", 0) + 1
+            return None
         if self.error_acks:
             self.error_acks -= 1   # the ok that follows a Resend: nothing was executed
             return None
@@ -164,10 +172,11 @@ class LineFlow:
         if line not in self.history and line != self.next_n:
             raise PrinterError("resend", "firmware asked for line %d which is no longer in history" % line)
         if line <= self.last_confirmed_n:
-            # It already answered that line: it lost its count (a silent reset?). Sending
-            # the line again could run it twice, so stop instead.
-            raise PrinterError("resend", "firmware asked again for line %d, which it had already "
-                                         "acknowledged; refusing to send it twice" % line)
+            # An ok we took for that line belonged to something else (a reply lost to
+            # line noise). The firmware's own N == last+1 rule still guarantees it runs
+            # the line once, so replaying is right; the miscount is only recorded.
+            self.stats["misattributed_oks"] = self.stats.get("misattributed_oks", 0) + 1
+            self.last_confirmed_n = line - 1
         accepted = [s for s in self.limbo if s.n < line]
         self.limbo = []
         kept = deque(s for s in self.fifo if s.n < line)
@@ -189,11 +198,9 @@ class LineFlow:
         if self.resync_until > now:
             self.resync_until = now + self.quiet_s()
 
-    def on_fragment(self):
-        """The firmware ran the digits left of a line cut by its flush ("Unknown command").
-
-        Its ok answers nothing we sent.
-        """
+    def expect_foreign_ok(self):
+        """An ok is coming that answers nothing we track: the firmware ran the digits left
+        of a line cut by its flush ("Unknown command"), or our unnumbered M108."""
         self.error_acks += 1
 
     def quiet_s(self):

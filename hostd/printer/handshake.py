@@ -11,6 +11,7 @@ from hostd.printer import protocol
 from hostd.printer.errors import PrinterError
 
 BANNER_QUIET_S = 0.2   # the boot banner is over once the board is quiet this long
+DRAIN_QUIET_S = 0.2    # before retrying a handshake step
 
 
 @dataclass
@@ -76,6 +77,15 @@ class _Session:
                 return False      # something else talks: the board did not reset
             deadline = time.monotonic() + BANNER_QUIET_S if started else deadline
 
+    def drain(self, quiet_s=DRAIN_QUIET_S):
+        """Discard replies until the board has been quiet for ``quiet_s``.
+
+        Before a retry: a late answer to the failed attempt would otherwise be taken for
+        the answer to the next line, and every later ok would be off by one.
+        """
+        while self.get(quiet_s) is not None:
+            pass
+
     def request(self, n, command, timeout_s):
         """Send line ``n`` and collect replies until its ok; None on timeout.
 
@@ -95,6 +105,7 @@ class _Session:
             if reply.kind == protocol.START:
                 raise _Reset()
             if reply.kind == protocol.RESEND:
+                self.drain()           # the ok that follows must not leak into the stream
                 return None            # it disagrees about the line: start over
             if reply.kind == protocol.ERROR and not protocol.is_resend_error(reply.text):
                 raise PrinterError("firmware", reply.text)
@@ -125,9 +136,11 @@ def _handshake(session, settings):
         try:
             # The numbered M110 sets the firmware's line counter whatever it was.
             if session.request(0, "M110 N0", settings.handshake_timeout_s) is None:
+                session.drain()
                 continue
             replies = session.request(1, "M115", settings.handshake_timeout_s)
             if replies is None:
+                session.drain()
                 continue
         except _Reset:
             session.wait_for_boot(settings.reset_wait_s)
@@ -145,6 +158,7 @@ def _handshake(session, settings):
             except _Reset:
                 continue
             if ok is None:
+                session.drain()
                 continue
             result.next_n = 3
         return result
