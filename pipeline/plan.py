@@ -15,6 +15,7 @@ import numpy as np
 from pipeline import __version__
 from pipeline import heightfield as hfio
 from pipeline.flatten import flatten
+from pipeline.geometry import signed_areas_2d
 from pipeline.mesh import build_mesh
 from pipeline.simplify import simplify
 from pipeline.simulate import simulate
@@ -38,6 +39,7 @@ class Plan:
     toolpaths: object = None
     simplified: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
+    fold_fraction: float = 0.0
     report: dict = field(default_factory=dict)
 
     @property
@@ -50,6 +52,15 @@ STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
 
 # Above this invalid-edge fraction the report warns (the paper's models: 0.4-4.7 %).
 INVALID_WARN = 0.10
+# Folded (flipped) area, as a fraction of the flat sheet, above which a plan is not printable.
+FOLD_LIMIT = 0.001
+
+
+def fold_area_fraction(xy, faces):
+    """Area of the flipped triangles over the whole flat area (0 for an embedding)."""
+    area = signed_areas_2d(xy, faces)
+    total = np.abs(area).sum()
+    return float(-area[area < 0].sum() / total) if total > 0 else 0.0
 
 
 def plan_file(path, profile, progress=None):
@@ -111,13 +122,18 @@ def plan_file(path, profile, progress=None):
     result.flat = flat
     timing["flatten"] = time.perf_counter() - t
     # A folded layout is not bad input: the plan goes on so the pictures show where,
-    # but it is marked not printable (the daemon will not print it).
+    # but where the fold covers more than a sliver of the sheet it is marked not
+    # printable (the daemon will not print it); a few flipped triangles at the edge
+    # only make paths overlap in a spot.
+    result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
     if flat.overlapping:
         result.problems.append({
-            "code": "flatten.overlap",
+            "code": "flatten.overlap" if result.fold_fraction > FOLD_LIMIT else
+                    "flatten.small_fold",
             "message": "the flattened layout folds over itself (%d flipped triangles, %d "
-                       "boundary crossings): paths there would overlap"
-                       % (flat.flipped_triangles, flat.boundary_intersections),
+                       "boundary crossings, %.3f %% of the sheet): paths there would overlap"
+                       % (flat.flipped_triangles, flat.boundary_intersections,
+                          100 * result.fold_fraction),
             "fix": "simplify the shape (raise min_prominence_mm or smooth_mm in the sidecar "
                    "or profile), lower its height, or raise flatten.iterations"})
     if flat.invalid_edge_fraction > INVALID_WARN:
@@ -191,7 +207,8 @@ def _report(path, profile, p, vrep, srep, timing):
             "saddles": int(mesh.info["saddles"]),
             "peaks": int(mesh.info["peaks"]),
         },
-        "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])]),
+        "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])],
+                        fold_area_fraction=p.fold_fraction),
         "simulation": {"mean_displacement_mm": float(sim.mean_displacement_mm),
                        "max_displacement_mm": float(sim.max_displacement_mm),
                        "mean_displacement_fraction": float(

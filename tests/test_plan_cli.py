@@ -155,3 +155,15 @@ def test_real_terrain_plans_and_says_whether_it_is_printable(terrain_dir, tmp_pa
     assert (r.returncode == 4) == (report["printable"] is False)
     for w in report["warnings"]:
         assert w["code"] in r.stderr
+
+
+def test_fold_area_fraction_measures_flipped_area():
+    from pipeline.plan import fold_area_fraction
+    xy = np.array([[0, 0], [1, 0], [0, 1], [1, 1.0]])
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    assert fold_area_fraction(xy, faces) == 0.0
+    folded = xy.copy()
+    folded[3] = [-0.5, -0.5]          # the second triangle flips over the first
+    f = fold_area_fraction(folded, faces)
+    assert 0.0 < f < 1.0
+    assert f == pytest.approx(0.75 / (0.5 + 0.75))
