@@ -166,4 +166,4 @@ def test_fold_area_fraction_measures_flipped_area():
     folded[3] = [-0.5, -0.5]          # the second triangle flips over the first
     f = fold_area_fraction(folded, faces)
     assert 0.0 < f < 1.0
-    assert f == pytest.approx(0.75 / (0.5 + 0.75))
+    assert f == pytest.approx(1.0 / (0.5 + 1.0))   # flipped area 1.0, total 1.5
