@@ -74,20 +74,21 @@ def test_three_files_one_invalid(tmp_path, dome, pty_sim):
 
 
 def test_slow_copy_is_not_taken_early(tmp_path, dome):
-    cfg = write_config(tmp_path, settle_s=1.0, poll_s=0.1)
+    cfg = write_config(tmp_path, settle_s=1.5, poll_s=0.1)
     drop_dir = tmp_path / "share" / "drop"
     data = dome.read_bytes()
     with daemon(cfg) as d:
         wait_for(lambda: (tmp_path / "state" / "jobs.sqlite").exists(), what="daemon up", proc=d)
         shutil.copy(dome.with_name("dome.yaml"), drop_dir / "slow.yaml")
-        chunks = 6
+        chunks = 8
         with open(drop_dir / "slow.npy", "wb") as f:
             for i in range(chunks):
                 f.write(data[i * len(data) // chunks:(i + 1) * len(data) // chunks])
                 f.flush()
-                time.sleep(0.6)
-                assert jobs(cfg) == [], "taken before the copy was complete"
+                time.sleep(0.5)             # over 3.5 s in all, each pause < settle_s
+            last_write = time.time()
         [job] = wait_for(lambda: jobs(cfg), timeout=20, what="job", proc=d)
+        assert job["created_at"] >= last_write, "taken before the copy was complete"
         wait_for(lambda: jobs(cfg)[0]["input_hash"], what="hash", proc=d)
         import hashlib
         assert jobs(cfg)[0]["input_hash"] == hashlib.sha256(data).hexdigest()
