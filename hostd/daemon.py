@@ -22,6 +22,7 @@ from pathlib import Path
 
 from hostd import farm as farm_mod
 from hostd import jobs as J
+from hostd.control import ControlMixin
 from hostd.errors import HostdError
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
 from hostd.notify import Notifier
@@ -121,7 +122,7 @@ class Slot:
             self.printer.close()
 
 
-class Daemon:
+class Daemon(ControlMixin):
     def __init__(self, config, notifier=None):
         self.config = config
         self.notify = notifier or Notifier()
@@ -471,87 +472,6 @@ class Daemon:
             self.store.set_state(job["id"], state, reason, error=reason, error_code=code, **values)
         elif values:
             self.store.update(job["id"], **values)
-
-    # -- terminal commands ----------------------------------------------------------------------------
-
-    def _control(self):
-        for req in self.store.pending_requests():
-            try:
-                ok, result = True, getattr(self, "_do_" + req["action"])(req["target"])
-            except HostdError as exc:
-                ok, result = False, exc.text()
-            except Exception as exc:  # answer the CLI whatever happens, then carry on
-                log.exception("control request %s failed", req)
-                ok, result = False, "internal error: %s" % exc
-            self.store.answer(req["id"], ok, result)
-
-    def _slot(self, name):
-        for slot in self.slots:
-            if slot.name == name:
-                return slot
-        raise HostdError("no printer %r on node %s" % (name, self.config.node_id),
-                         code="control.unknown_printer",
-                         fix="printers here: " + ", ".join(s.name for s in self.slots))
-
-    def _do_cancel(self, job_id):
-        job = self.store.require(job_id)
-        if job["state"] in J.FINISHED:
-            raise HostdError("job %s is already %s" % (job["id"], job["state"]),
-                             code="control.finished")
-        if job["state"] == J.PRINTING:
-            for slot in self.slots:
-                if slot.job_id == job["id"]:
-                    slot.printer.cancel()
-            return "cancelling %s: the printer runs its cancel script" % job["id"]
-        proc = self.plans.pop(job["id"], None)
-        if proc:
-            proc.kill()
-        self._to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
-                        state=J.CANCELLED)
-        return "cancelled %s" % job["id"]
-
-    def _do_requeue(self, job_id):
-        job = self.store.require(job_id)
-        if job["state"] not in J.FINISHED:
-            raise HostdError("job %s is %s, not finished" % (job["id"], job["state"]),
-                             code="control.active", fix="cancel it first")
-        src = Path(job["input_path"])
-        if not src.exists():
-            raise HostdError("the input of %s is gone (%s)" % (job["id"], src),
-                             code="control.input_missing", fix="drop the file again")
-        folder = self.farm.claim_dir / (job["target"] or farm_mod.ROOT_TARGET)
-        folder.mkdir(parents=True, exist_ok=True)
-        dest = farm_mod.unique_path(folder / src.name)
-        os.rename(src, dest)
-        side = None
-        if job["sidecar_path"] and os.path.exists(job["sidecar_path"]):
-            side = dest.with_name(dest.stem + ".yaml")
-            os.rename(job["sidecar_path"], side)
-        err = src.with_name(src.stem + ".error.txt")
-        if err.exists():
-            os.unlink(err)   # the reason is kept in the job's events
-        self.store.set_state(job["id"], J.QUEUED, "requeued by a person", input_path=str(dest),
-                             sidecar_path=str(side) if side else None, error=None,
-                             error_code=None, copies_done=0, progress=0.0, finished_at=None)
-        return "requeued %s" % job["id"]
-
-    def _do_pause(self, name):
-        slot = self._slot(name)
-        slot.paused = True
-        self.store.set_printer(name, paused=1)
-        if slot.job_id is not None:
-            slot.printer.pause()
-            self.store.event(slot.job_id, "paused", "paused by a person")
-        return "paused %s" % name
-
-    def _do_resume(self, name):
-        slot = self._slot(name)
-        slot.paused = False
-        self.store.set_printer(name, paused=0)
-        if slot.job_id is not None:
-            slot.printer.resume()
-            self.store.event(slot.job_id, "resumed", "resumed by a person")
-        return "resumed %s" % name
 
     # -- status -------------------------------------------------------------------------------------
 
