@@ -45,12 +45,14 @@ def sim_and_printer(baud=250000, settings=None, **options):
     The pty is published under a symlink, like /dev/serial/by-id/..., so that the
     port keeps its name when the simulated device disappears and comes back.
     """
+    options.setdefault("boot_s", 0.05)      # quick boots keep the test set short
     config = SimConfig(**options)
     folder = tempfile.mkdtemp(prefix="hostd-sim-")
     sim = Simulator(config, baud=baud, link_path=os.path.join(folder, "printer"))
     path = sim.start()
     settings = settings or LinkSettings()
     settings.baud = baud
+    settings.banner_quiet_s = 0.05
     printer = Printer(path, settings)
     try:
         printer.connect()

@@ -105,11 +105,11 @@ def test_ctrl_c_cancels_the_stream(sim_printer, tmp_path):
     import signal
     gcode = tmp_path / "part.gcode"
     gcode.write_text("\n".join(moves(2000, feed_mm_min=600)) + "\n")    # minutes of printing
-    link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "1")
+    link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "0.5")
     stream = subprocess.Popen(hostd("stream", str(gcode), "--port", link, "--baud", "250000"),
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        time.sleep(1.2)     # connected and printing by then
+        time.sleep(1.0)     # connected and printing by then
         stream.send_signal(signal.SIGINT)
         out, err = stream.communicate(timeout=30)
     finally:

@@ -39,7 +39,7 @@ def test_exactly_once_with_corruption_and_lost_oks_send_ahead(record_property):
     lines = moves(3000)
     # Two lost oks in a row at the very end need the timeout recovery (M155 reports flow
     # all the while and must not count as answers).
-    settings = LinkSettings(ok_timeout_s=1.0)
+    settings = LinkSettings(ok_timeout_s=0.5)
     with sim_and_printer(baud=1000000, settings=settings, advanced_ok=True, time_scale=0, seed=3, fault_corrupt=0.01,
                          fault_lost_ok=0.01, fault_noise=0.005) as (sim, printer):
         printer.start(lines)
@@ -90,7 +90,7 @@ def test_send_ahead_never_exceeds_firmware_buffers(record_property):
 
 
 def test_send_ahead_respects_receive_buffer_bytes():
-    lines = moves(400)    # ~45-byte lines: three do not fit in 96 bytes
+    lines = moves(250)    # ~45-byte lines: three do not fit in 96 bytes
     settings = LinkSettings(rx_buffer_bytes=95)
     with sim_and_printer(settings=settings, advanced_ok=True, bufsize=16, rx_bytes=96,
                          time_scale=0.05) as (sim, printer):

@@ -10,7 +10,6 @@ from dataclasses import dataclass, field
 from hostd.printer import protocol
 from hostd.printer.errors import PrinterError
 
-BANNER_QUIET_S = 0.2   # the boot banner is over once the board is quiet this long
 DRAIN_QUIET_S = 0.2    # before retrying a handshake step
 
 
@@ -60,7 +59,7 @@ class _Session:
             except Exception as exc:
                 raise PrinterError("port", "write failed: %s" % exc) from exc
 
-    def wait_for_boot(self, timeout_s):
+    def wait_for_boot(self, timeout_s, quiet_s):
         """Wait for ``start`` (the board resets on open); return early on other signs of life."""
         deadline = time.monotonic() + timeout_s
         started = False
@@ -75,7 +74,7 @@ class _Session:
                 started = True
             elif not started:
                 return False      # something else talks: the board did not reset
-            deadline = time.monotonic() + BANNER_QUIET_S if started else deadline
+            deadline = time.monotonic() + quiet_s if started else deadline
 
     def drain(self, quiet_s=DRAIN_QUIET_S):
         """Discard replies until the board has been quiet for ``quiet_s``.
@@ -130,7 +129,7 @@ def handshake(link, port):
 
 
 def _handshake(session, settings):
-    session.wait_for_boot(settings.reset_wait_s)
+    session.wait_for_boot(settings.reset_wait_s, settings.banner_quiet_s)
     for attempt in range(settings.handshake_attempts):
         session.result.sent.clear()
         try:
@@ -143,7 +142,7 @@ def _handshake(session, settings):
                 session.drain()
                 continue
         except _Reset:
-            session.wait_for_boot(settings.reset_wait_s)
+            session.wait_for_boot(settings.reset_wait_s, settings.banner_quiet_s)
             continue
         result = session.result
         for reply in replies:

@@ -56,6 +56,7 @@ class LinkSettings:
     open_timeout_s: float = 5.0         # port must appear/open within this
     reset_wait_s: float = 2.5           # wait this long for 'start' after opening
     reopen_delay_s: float = 0.1         # closed->reopened gap, so the board sees the close
+    banner_quiet_s: float = 0.2         # after 'start', the boot banner ends when quiet this long
     handshake_timeout_s: float = 2.0    # per probe (M110 / M115) while connecting
     handshake_attempts: int = 4
     ok_timeout_s: float = 10.0          # no answer (ok, busy, error...) -> recovery
