@@ -71,6 +71,13 @@ class _Graph:
                         "outline")
         iso_levels = self.levels[1:] if self.level_outline else self.levels
         self.pieces = [outline] + isoline_pieces(field, self.polygon, iso_levels, 2 * l_u)
+        if len(self.pieces) < 2:
+            raise MeshingError(
+                "after simplification the shape has no isoline %.3g mm above its edge "
+                "(highest point %.3g mm): nothing for the sheet to form"
+                % (dh, float(g_in.max() - g_out.min())), code="mesh.too_flat",
+                fix="make the part taller (height_mm in the sidecar), or lower "
+                    "mesh.isoline_step_mm or min_prominence_mm")
         self.level_index = np.array(
             [-1 if np.isnan(p.level) else int(np.argmin(np.abs(self.levels - p.level)))
              for p in self.pieces])

@@ -7,6 +7,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from daemon_helpers import (FAST_SIM, all_files, daemon, gcode_commands, hostd, jobs, states,
@@ -119,18 +120,24 @@ def test_bad_config_and_bad_sidecar(tmp_path, dome):
 
 
 @pytest.mark.slow
-def test_crashing_plan_fails_its_job_only(tmp_path, dome):
-    cfg = write_config(tmp_path, planning={"workers": 2})
+def test_runaway_plan_fails_its_job_only(tmp_path, dome):
+    # A 16-megapixel field passes the input checks but needs far more memory than
+    # the plan limit: its planning process dies, the other job is planned and printed.
+    cfg = write_config(tmp_path, planning={"workers": 2, "memory_mb": 700})
     drop_dir = tmp_path / "share" / "drop"
-    crash = write_dome(tmp_path / "in" / "tiny.npy", diameter_mm=10, height_mm=2)
+    big = tmp_path / "in" / "huge.npy"
+    big.parent.mkdir(parents=True, exist_ok=True)
+    y, x = np.mgrid[0:4000, 0:4000].astype(np.float32)
+    np.save(big, 20.0 * np.exp(-((x - 2000) ** 2 + (y - 2000) ** 2) / 1.6e6).astype(np.float32))
+    (tmp_path / "in" / "huge.yaml").write_text("pixel_mm: 0.05\n")
     with daemon(cfg) as d:
-        drop(crash, drop_dir, "tiny.npy")
+        drop(big, drop_dir, "huge.npy")
         drop(dome, drop_dir, "good.npy")
-        wait_for(lambda: states(cfg) == {"tiny.npy": "failed", "good.npy": "done"}
-                 or states(cfg).get("good.npy") == "failed", timeout=90, what="done", proc=d)
+        wait_for(lambda: states(cfg) == {"huge.npy": "failed", "good.npy": "done"}
+                 or states(cfg).get("good.npy") == "failed", timeout=120, what="done", proc=d)
         assert states(cfg)["good.npy"] == "done"
-        reason = (tmp_path / "share" / "failed" / "tiny.error.txt").read_text()
-        assert "planning process" in reason or "error" in reason.lower()
+        reason = (tmp_path / "share" / "failed" / "huge.error.txt").read_text()
+        assert "memory" in reason.lower() or "planning process" in reason
         assert d.stop() == 0
 
 
