@@ -452,21 +452,21 @@ def _metrics(traces, tsig, raw, xy, faces, pw):
     samples = np.concatenate(samples)
     label = np.concatenate(label)
     tree = cKDTree(samples)
-    probe = np.arange(0, len(samples), 2)
-    d, i = tree.query(samples[probe], k=16, distance_upper_bound=3 * pw)
+    probe = np.arange(0, len(samples), 3)
+    d, i = tree.query(samples[probe], k=14, distance_upper_bound=3 * pw)
     i = np.minimum(i, len(label) - 1)
     other = (label[i] != label[probe][:, None]) & np.isfinite(d)
     has = other.any(axis=1)
     spacing = d[has, np.argmax(other[has], axis=1)]
     # Coverage and overlap on a grid over the flat footprint.
     poly = _outline_polygon(xy, faces)
-    res = pw / 3
+    res = pw / 2.5
     x0, y0 = xy.min(axis=0)
     x1, y1 = xy.max(axis=0)
     X, Y = np.meshgrid(np.arange(x0, x1, res) + res / 2, np.arange(y0, y1, res) + res / 2)
     inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
     grid = np.column_stack([X.ravel()[inside], Y.ravel()[inside]])
-    d, i = tree.query(grid, k=8, distance_upper_bound=pw)
+    d, i = tree.query(grid, k=6, distance_upper_bound=pw)
     covered = d[:, 0] <= pw / 2
     first = label[np.minimum(i[:, 0], len(label) - 1)]
     lab = label[np.minimum(i, len(label) - 1)]
