@@ -99,3 +99,36 @@ class ControlMixin:
             self.store.event(slot.job_id, "resumed", "resumed by a person")
         return "resumed %s" % name
 
+
+    def _do_estop(self, name):
+        # The web writes M112 itself when it runs in this process; a second one is harmless
+        # and covers requests from another process.
+        from hostd.printer import PrinterError
+        slot = self._slot(name)
+        if slot.printer is None:
+            raise HostdError("printer %s is not connected" % name, code="control.disconnected")
+        try:
+            slot.printer.estop()
+        except PrinterError as exc:
+            raise HostdError("emergency stop of %s failed: %s" % (name, exc),
+                             code="control.estop_failed") from None
+        slot.paused = True           # a halted printer takes no new job until resumed
+        self.store.set_printer(name, paused=1)
+        if slot.job_id is not None:
+            self.store.event(slot.job_id, "estop", "emergency stop (M112) by a person")
+        log.warning("printer %s: emergency stop by a person", name)
+        return "emergency stop sent to %s (M112); reset the printer, then resume" % name
+
+    def _do_reorder(self, order_json):
+        """``order_json``: job ids, first to print first; the rest keep their order after."""
+        import json
+        order = json.loads(order_json)
+        queue = sorted(self.store.list([J.QUEUED, J.PLANNING, J.READY]),
+                       key=lambda j: (-j["priority"], j["seq"]))
+        by_id = {j["id"]: j for j in queue}
+        ids = [i for i in order if i in by_id] + [j["id"] for j in queue if j["id"] not in order]
+        for rank, job_id in enumerate(ids):
+            priority = len(ids) - rank
+            if by_id[job_id]["priority"] != priority:
+                self.store.update(job_id, priority=priority)
+        return "queue order: " + ", ".join(ids)

@@ -1,0 +1,280 @@
+"""What the page and the API show: cheap snapshots of the store and the running daemon.
+
+Nothing here talks to a printer or waits for the run loop: rows come from the job store
+(one SQLite connection per web thread, WAL readers never block the daemon's writer) and
+live values (state, temperatures, line counters) are copies the driver thread keeps.
+"""
+
+import bisect
+import json
+import os
+import stat
+import threading
+import time
+from pathlib import Path
+
+from hostd import jobs as J
+
+PAGE_STATES = ("idle", "heating", "printing", "paused", "error", "disconnected")
+_STATE_MAP = {"connecting": "disconnected", "stopped": "disconnected", None: "disconnected"}
+HISTORY_POINTS = 120       # temperature samples per heater sent to a client
+RECENT_JOBS = 20
+QUEUE_STATES = (J.QUEUED, J.PLANNING, J.READY)
+
+
+def page_state(driver_state, paused=False):
+    """One of :data:`PAGE_STATES` for a driver/store printer state (``paused`` = operator flag)."""
+    state = _STATE_MAP.get(driver_state, driver_state)
+    if state not in PAGE_STATES:
+        state = "error" if state else "disconnected"
+    if paused and state == "idle":
+        state = "paused"
+    return state
+
+
+def _downsample(samples, n=HISTORY_POINTS):
+    if len(samples) <= n:
+        return samples
+    step = len(samples) / float(n)
+    return [samples[int(i * step)] for i in range(n - 1)] + [samples[-1]]
+
+
+class _FileCache:
+    """Parsed small files keyed by (path, mtime, size): reports, G-code layer starts."""
+
+    def __init__(self, size=64):
+        self._lock = threading.Lock()
+        self._data = {}
+        self._size = size
+
+    def get(self, path, parse):
+        try:
+            st = os.stat(path)
+        except OSError:
+            return None
+        key = (str(path), st.st_mtime_ns, st.st_size)
+        with self._lock:
+            if key in self._data:
+                return self._data[key]
+        try:
+            value = parse(path)
+        except (OSError, ValueError):
+            value = None
+        with self._lock:
+            if len(self._data) >= self._size:
+                self._data.pop(next(iter(self._data)))
+            self._data[key] = value
+        return value
+
+
+def _read_json(path):
+    with open(path, encoding="utf-8") as f:
+        return json.load(f)
+
+
+def _layer_starts(path):
+    """(file line numbers where each ``;LAYER:n`` starts, layer count) of a G-code file."""
+    starts, count = [], 0
+    with open(path, "rb") as f:
+        for number, raw in enumerate(f, 1):
+            if raw.startswith(b";LAYER:"):
+                starts.append(number)
+            elif raw.startswith(b";LAYER_COUNT:"):
+                count = int(raw.split(b":", 1)[1] or 0)
+    return starts, count or len(starts)
+
+
+def outbox_files(outbox):
+    """Names of the regular files (never symlinks, never hidden) in a job's outbox."""
+    if not outbox:
+        return []
+    try:
+        entries = list(os.scandir(outbox))
+    except OSError:
+        return []
+    out = []
+    for e in entries:
+        try:
+            if not e.name.startswith(".") and stat.S_ISREG(e.stat(follow_symlinks=False).st_mode):
+                out.append(e.name)
+        except OSError:
+            continue
+    return sorted(out)
+
+
+class NodeView:
+    """Read-only view of one node for the web threads."""
+
+    def __init__(self, config, daemon=None, db_path=None):
+        self.config = config
+        self.daemon = daemon
+        self.db_path = Path(db_path or config.db_path)
+        self._local = threading.local()
+        self._files = _FileCache()
+
+    # -- store -----------------------------------------------------------------------------
+
+    @property
+    def store(self):
+        store = getattr(self._local, "store", None)
+        if store is None:
+            store = self._local.store = J.JobStore(self.db_path)
+        return store
+
+    def job(self, job_id):
+        row = self.store.db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        return dict(row) if row else None
+
+    def counts(self):
+        rows = self.store.db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state")
+        out = {s: 0 for s in J.STATES}
+        out.update({r[0]: r[1] for r in rows})
+        return out
+
+    def jobs(self, state=None, limit=200):
+        sql, args = "SELECT * FROM jobs", []
+        if state:
+            states = [state] if isinstance(state, str) else list(state)
+            sql += " WHERE state IN (%s)" % ", ".join("?" * len(states))
+            args += states
+        sql += " ORDER BY seq DESC LIMIT %d" % int(limit)
+        return [dict(r) for r in self.store.db.execute(sql, args)]
+
+    def queue(self):
+        rows = self.store.db.execute(
+            "SELECT * FROM jobs WHERE state IN (?, ?, ?) ORDER BY priority DESC, seq",
+            QUEUE_STATES)
+        return [dict(r) for r in rows]
+
+    def recent(self, limit=RECENT_JOBS):
+        rows = self.store.db.execute(
+            "SELECT * FROM jobs WHERE state IN (?, ?, ?, ?) ORDER BY finished_at DESC, seq DESC "
+            "LIMIT %d" % int(limit), J.FINISHED)
+        return [dict(r) for r in rows]
+
+    # -- jobs ------------------------------------------------------------------------------
+
+    def report(self, job):
+        for name in outbox_files(job.get("outbox")):
+            if name.endswith(".report.json"):
+                return self._files.get(Path(job["outbox"]) / name, _read_json)
+        return None
+
+    def job_info(self, job, live=None, with_report=False):
+        """A JSON-ready job: store fields, outputs, and (printing) layer, elapsed and ETA."""
+        keys = ("id", "name", "state", "printer", "profile", "target", "priority", "copies",
+                "copies_done", "progress", "error", "error_code", "created_at", "updated_at",
+                "started_at", "finished_at")
+        info = {k: job.get(k) for k in keys}
+        files = outbox_files(job.get("outbox"))
+        info["files"] = files
+        stem = next((f[:-len(".toolpath.png")] for f in files if f.endswith(".toolpath.png")),
+                    None)
+        info["images"] = {kind: "%s.%s.png" % (stem, kind) for kind in ("toolpath", "stress",
+                                                                       "preview", "texture")
+                          if stem and "%s.%s.png" % (stem, kind) in files}
+        info["elapsed_s"] = info["eta_s"] = info["layer"] = info["layers"] = None
+        if job["state"] == J.PRINTING:
+            last_line = job.get("last_line") or 0
+            elapsed = time.time() - job["started_at"] if job.get("started_at") else None
+            if live:
+                total = live.get("total") or 0
+                info["progress"] = round(live["confirmed"] / total, 4) if total else 0.0
+                last_line = live.get("last_confirmed_line", last_line)
+                elapsed = live.get("seconds", elapsed)
+            p = info["progress"] or 0.0
+            info["elapsed_s"] = round(elapsed, 1) if elapsed is not None else None
+            if elapsed and p > 0.001:
+                info["eta_s"] = round(elapsed * (1.0 - p) / p, 1)
+            gcode = next((f for f in files if f.endswith(".gcode")), None)
+            if gcode:
+                layers = self._files.get(Path(job["outbox"]) / gcode, _layer_starts)
+                if layers:
+                    starts, count = layers
+                    info["layer"] = max(1, bisect.bisect_right(starts, last_line))
+                    info["layers"] = count
+        if with_report:
+            info["report"] = self.report(job)
+            info["events"] = self.store.events(job["id"])
+        return info
+
+    # -- printers ----------------------------------------------------------------------------
+
+    def printers(self, history=False):
+        rows = self.store.printers()
+        out = []
+        if self.daemon is None:
+            names = [p.name for p in self.config.printers]
+            for name in names:
+                row = rows.get(name, {})
+                out.append(self._printer_dict(name, row.get("state"), bool(row.get("paused")),
+                                              row.get("job_id"), None, {}, {}, None, None))
+            return out
+        for slot in self.daemon.slots:
+            printer = slot.printer
+            temps, hist, stats, starvation, live = {}, {}, {}, None, None
+            if printer is not None:
+                temps = printer.temperatures.current()
+                if history:
+                    hist = {h: _downsample(s) for h, s in printer.temperatures.history().items()}
+                stats = {k: printer.stats.get(k, 0) for k in ("lines_sent", "resends",
+                                                              "lines_resent", "timeouts")}
+                sim = getattr(printer, "simulator", None)
+                if sim is not None:
+                    starvation = sim.firmware.stats.get("starvation_s")
+            link_job = slot.link_job
+            if link_job is not None:
+                live = link_job.snapshot()
+            row = rows.get(slot.name, {})
+            out.append(self._printer_dict(slot.name, slot.state, slot.paused,
+                                          slot.job_id or row.get("job_id"), live, temps, stats,
+                                          starvation, slot.error, hist if history else None,
+                                          slot.config.profile))
+        return out
+
+    def _printer_dict(self, name, state, paused, job_id, live, temps, stats, starvation,
+                      error, history=None, profile=None):
+        cfg = self.config.printer(name)
+        job = self.job(job_id) if job_id else None
+        d = {"name": name, "profile": profile or (cfg.profile if cfg else None),
+             "state": page_state(state, paused), "link_state": state, "paused": bool(paused),
+             "temperatures": temps, "lines_sent": stats.get("lines_sent"),
+             "resends": stats.get("resends"), "starvation_s": starvation, "error": error,
+             "job": self.job_info(job, live) if job else None}
+        if history is not None:
+            d["history"] = history
+        return d
+
+    # -- node --------------------------------------------------------------------------------
+
+    def status(self, history=False):
+        from hostd import __version__
+        printers = self.printers(history=history)
+        queue = [self.job_info(j) for j in self.queue()]
+        recent = [self.job_info(j) for j in self.recent()]
+        # Changes when a job starts, ends or moves: the page reloads then, else it patches.
+        sig = ";".join([",".join("%s=%s" % (p["name"], p["job"]["id"] if p["job"] else "")
+                                 for p in printers),
+                        ",".join("%s:%s" % (j["id"], j["state"]) for j in queue),
+                        ",".join("%s:%s" % (j["id"], j["state"]) for j in recent[:5])])
+        return {"node_id": self.config.node_id, "version": __version__, "time": time.time(),
+                "daemon": self.daemon is not None, "printers": printers,
+                "queue": queue, "recent": recent, "signature": sig,
+                "counts": self.counts(), "token_configured": bool(self.config.web.token)}
+
+    def nodes(self, stale_s=None):
+        """Every node's status file on the share, with ``stale`` and ``age_s``."""
+        from hostd.farm import Farm
+        stale_s = stale_s or max(15.0, 3.0 * self.config.heartbeat_s)
+        now = time.time()
+        out = []
+        for node_id, data in Farm(self.config.drop_dir, self.config.node_id).nodes().items():
+            if not isinstance(data, dict):
+                continue
+            seen = data.get("last_seen")
+            age = now - seen if isinstance(seen, (int, float)) else None
+            data = dict(data, node_id=node_id, age_s=round(age, 1) if age is not None else None,
+                        stale=age is None or age > stale_s or data.get("state") == "stopped",
+                        printers=[p for p in data.get("printers") or [] if isinstance(p, dict)])
+            out.append(data)
+        return out
