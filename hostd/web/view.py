@@ -225,9 +225,8 @@ class NodeView:
             link_job = slot.link_job
             if link_job is not None:
                 live = link_job.snapshot()
-            row = rows.get(slot.name, {})
             out.append(self._printer_dict(slot.name, slot.state, slot.paused,
-                                          slot.job_id or row.get("job_id"), live, temps, stats,
+                                          slot.job_id, live, temps, stats,
                                           starvation, slot.error, hist if history else None,
                                           slot.config.profile))
         return out
