@@ -134,6 +134,7 @@ class Daemon(ControlMixin):
         self.plans = {}              # job id -> PlanProcess
         self.lock = DaemonLock(config.lock_path)
         self.store = None
+        self.web = None
         self._next_beat = 0.0
         self._next_reconnect = 0.0
         self._profile_hashes = {}
@@ -153,6 +154,9 @@ class Daemon(ControlMixin):
             self.store.set_printer(slot.name, state="connecting", paused=0, job_id=None)
             slot.connect_async()
         self.watcher.start()
+        if c.web.port is not None:
+            from hostd.web import server as web_server
+            self.web = web_server.start(c, self.store, self)
         log.info("node %s watching %s with %d printer(s)", c.node_id, c.drop_dir, len(self.slots))
         self.notify.ready("watching %s" % c.drop_dir)
 
@@ -209,6 +213,8 @@ class Daemon(ControlMixin):
                     slot.link_job.wait(max(0.1, deadline - time.monotonic()))
                 self._interrupt(slot, "the daemon was stopped during the print")
         self.watcher.stop()
+        if self.web is not None:
+            self.web.stop()
         for slot in self.slots:
             slot.close()
             self.store.set_printer(slot.name, state="stopped", job_id=None)
@@ -478,12 +484,14 @@ class Daemon(ControlMixin):
     def status(self, state="running"):
         printers = []
         for slot in self.slots:
+            snap = slot.link_job.snapshot() if slot.link_job is not None else None
             printers.append({"name": slot.name, "profile": slot.config.profile,
                              "state": slot.state, "paused": slot.paused, "job": slot.job_id,
-                             "error": slot.error})
+                             "error": slot.error, "progress": round(snap["confirmed"] / snap[
+                                 "total"], 4) if snap and snap["total"] else None})
         queued = len(self.store.list([J.QUEUED, J.PLANNING, J.READY]))
         return {"state": state, "pid": os.getpid(), "printers": printers, "queue_length": queued,
-                "planning": sorted(self.plans)}
+                "planning": sorted(self.plans), "web_url": self.web.url if self.web else None}
 
     def _heartbeat(self, state="running"):
         try:

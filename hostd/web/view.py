@@ -274,6 +274,7 @@ class NodeView:
             age = now - seen if isinstance(seen, (int, float)) else None
             data = dict(data, node_id=node_id, age_s=round(age, 1) if age is not None else None,
                         stale=age is None or age > stale_s or data.get("state") == "stopped",
-                        printers=[p for p in data.get("printers") or [] if isinstance(p, dict)])
+                        printers=[dict(p, state=page_state(p.get("state"), p.get("paused")))
+                                  for p in data.get("printers") or [] if isinstance(p, dict)])
             out.append(data)
         return out

@@ -1,0 +1,77 @@
+"""waitress inside the daemon process: its own small thread pool, never the run loop's thread.
+
+The request path only reads the store (its own SQLite connection per thread) and copies
+of the driver's counters, so serving pages cannot hold up the serial stream. ``web.port``
+0 takes any free port (tests, several nodes on one machine); the address is logged and
+published in the node's status file as ``web_url`` for the farm view.
+"""
+
+import logging
+import socket
+import threading
+
+log = logging.getLogger("hostd.web")
+THREADS = 4
+
+
+class WebServer:
+    """A running waitress server; :meth:`stop` closes it."""
+
+    def __init__(self, server, url):
+        self.server = server
+        self.url = url
+        self.thread = threading.Thread(target=self._serve, name="hostd-web", daemon=True)
+
+    def _serve(self):
+        try:
+            self.server.run()
+        except Exception:        # closed under its feet at shutdown, or a real failure
+            if self.server is not None:
+                log.exception("web server stopped")
+
+    def stop(self):
+        server, self.server = self.server, None
+        if server is not None:
+            server.close()
+        self.thread.join(2.0)
+
+
+def public_url(host, port):
+    if host in ("0.0.0.0", "::", ""):
+        host = socket.gethostname()
+    if ":" in host:
+        host = "[%s]" % host
+    return "http://%s:%d/" % (host, port)
+
+
+def start(config, store=None, daemon=None, threads=THREADS):
+    """Serve the app for ``config.web`` in background threads; None if it cannot bind.
+
+    A busy port must not keep the printers from working: it is logged, not raised.
+    """
+    try:
+        return _start(config, store, daemon, threads)
+    except Exception:
+        log.exception("web page not started")
+        return None
+
+
+def _start(config, store, daemon, threads):
+    from waitress import create_server
+
+    from hostd.web.app import create_app
+    app = create_app(config, store=store, daemon=daemon)
+    try:
+        server = create_server(app, host=config.web.host, port=config.web.port, threads=threads,
+                               ident="hostd", clear_untrusted_proxy_headers=True,
+                               max_request_body_size=app.config["MAX_CONTENT_LENGTH"] + 65536)
+    except OSError as exc:
+        log.warning("web page not started: cannot listen on %s:%s (%s); set web.port in "
+                    "hostd.yaml to a free port", config.web.host, config.web.port, exc.strerror)
+        return None
+    url = public_url(config.web.host, int(server.effective_port))
+    web = WebServer(server, url)
+    web.thread.start()
+    log.info("status page on %s%s", url, "" if config.web.token else
+             " (actions off: no web.token configured)")
+    return web

@@ -1,0 +1,93 @@
+"""A real browser on a real daemon: headless Debian chromium over the DevTools protocol.
+
+`hostd run` on the simulator with a token, a file dropped, the page opened: the progress
+bar advances by itself (JS polling), pause with the token changes the printer's state,
+and a screenshot is kept in test-artifacts/.
+"""
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon_helpers import DaemonProcess, write_config, write_dome
+from web_helpers import CHROMIUM, Chromium, free_port, get_json, wait_http
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTIFACTS = ROOT / "test-artifacts"
+TOKEN = "browser-test-token"
+# Slow enough (moves at 1/5 of real time) for a person, or a test, to see the bar move.
+SLOW_SIM = "sim://?time_scale=0.2&advanced_ok=1&boot_s=0"
+
+pytestmark = pytest.mark.slow
+
+
+def _requirements():
+    if not os.path.exists(CHROMIUM):
+        pytest.skip("Debian's chromium is not installed at %s (apt-get install chromium)"
+                    % CHROMIUM)
+    pytest.importorskip("websocket", reason="pip package websocket-client is not installed")
+
+
+def test_page_in_headless_chromium(tmp_path):
+    _requirements()
+    port = free_port()
+    config = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+                                               "port": SLOW_SIM, "baud": 2000000}],
+                          web={"host": "127.0.0.1", "port": port, "token": TOKEN})
+    base = "http://127.0.0.1:%d" % port
+    d = DaemonProcess(config)
+    browser = None
+    try:
+        wait_http(base + "/healthz")
+        write_dome(tmp_path / "in" / "dome.npy", diameter_mm=25, height_mm=4)
+        drop = tmp_path / "share" / "drop"
+        for f in ("dome.yaml", "dome.npy"):       # sidecar first, as a person would copy
+            shutil.copy(tmp_path / "in" / f, drop / (f + ".tmp"))
+            os.rename(drop / (f + ".tmp"), drop / f)
+
+        def printing():
+            _, s = get_json(base + "/api/status")
+            p = s["printers"][0]
+            return p["job"] and p["state"] in ("heating", "printing") and \
+                (p["job"]["progress"] or 0) > 0.01
+        deadline = time.monotonic() + 120
+        while not printing():
+            assert time.monotonic() < deadline, "no print started:\n" + d.output()[-3000:]
+            assert d.proc.poll() is None, d.output()[-3000:]
+            time.sleep(0.3)
+
+        browser = Chromium()
+        browser.goto(base + "/")
+        assert browser.js("document.querySelector('.printer h2').textContent").startswith("p1")
+        bar = "document.querySelector('[data-field=progress]').value"
+        first = browser.wait_js(bar, what="a progress bar")
+        # No reload: hostd.js polls the API and moves the bar.
+        browser.js("window.__same_page = true")
+        browser.wait_js("%s > %r" % (bar, first + 0.005), timeout=30, what="the bar to advance")
+        assert browser.js("window.__same_page === true")
+
+        browser.js("document.getElementById('token-input').value = %r;"
+                   "document.getElementById('token-keep').click()" % TOKEN)
+        assert browser.js("sessionStorage.getItem('hostd-token')") == TOKEN
+        assert TOKEN not in browser.js("document.documentElement.outerHTML")
+        browser.js("document.querySelector('form.pause button').click()")
+        browser.wait_js("document.querySelector('[data-field=state]').textContent === 'paused'",
+                        timeout=30, what="the state to read paused")
+        _, s = get_json(base + "/api/status")
+        assert s["printers"][0]["state"] == "paused" and s["printers"][0]["paused"] is True
+        browser.screenshot(ARTIFACTS / "web_page_paused.png")
+        assert (ARTIFACTS / "web_page_paused.png").stat().st_size > 10000
+
+        # Cancel asks for confirmation: dismissed, nothing happens.
+        browser.js("window.confirm = function () { return false; };"
+                   "document.querySelector('form.action[data-confirm] button').click()")
+        time.sleep(0.5)
+        _, s = get_json(base + "/api/status")
+        assert s["printers"][0]["job"] is not None
+    finally:
+        if browser is not None:
+            browser.close()
+        assert d.stop() == 0, d.output()[-3000:]

@@ -1,0 +1,76 @@
+"""The page without JavaScript, the farm view from the nodes' status files, and waitress serving."""
+
+import json
+import time
+
+from hostd.outputs import atomic_write
+from hostd.web import server
+from test_web_api import TOKEN, Node, make_config
+from web_helpers import get_json
+
+
+def test_page_plain_html(tmp_path):
+    n = Node(tmp_path)
+    html = n.client.get("/").get_data(as_text=True)
+    # Every action is a real form (works without JS), with a token field and, when
+    # destructive, a confirmation box.
+    assert 'action="/actions/printers/sim/pause"' in html
+    assert 'action="/actions/jobs/%s/cancel"' % n.printing in html
+    assert html.count('name="confirm"') >= 2
+    assert '<progress max="1" value="0.5"' in html
+    assert "layer <span data-field=\"layer\">2</span> of <span data-field=\"layers\">2</span>" \
+        in html
+    assert "/api/jobs/%s/files/dome.toolpath.png" % n.printing in html
+    for name in ("a.png", "b.png"):
+        assert name in html
+    assert TOKEN not in html
+    csp = n.client.get("/").headers["Content-Security-Policy"]
+    assert "default-src 'self'" in csp and "script-src 'self'" in csp
+    for asset in ("/static/hostd.js", "/static/hostd.css"):
+        assert n.client.get(asset).status_code == 200
+    job = n.client.get("/jobs/" + n.printing).get_data(as_text=True)
+    assert "dome.gcode" in job and "12.5" in job
+    n.store.close()
+
+
+def test_farm_view_marks_stale_nodes(tmp_path):
+    n = Node(tmp_path)
+    nodes = n.config.drop_dir / ".hostd" / "nodes"
+    now = time.time()
+    atomic_write(nodes / "n1.json", json.dumps({
+        "node_id": "n1", "state": "running", "last_seen": now, "queue_length": 2,
+        "web_url": "http://n1.local:8080/",
+        "printers": [{"name": "sim", "state": "printing", "paused": False, "job": "j1",
+                      "progress": 0.42}]}))
+    atomic_write(nodes / "old<b>.json", json.dumps({
+        "node_id": "old", "state": "running", "last_seen": now - 3600, "queue_length": 0,
+        "printers": [{"name": "mk3", "state": "idle", "paused": False, "job": None}]}))
+    atomic_write(nodes / "broken.json", "{not json")
+    html = n.client.get("/farm").get_data(as_text=True)
+    assert '<a href="http://n1.local:8080/">n1</a>' in html
+    assert "42 %" in html and "queue 2" in html
+    assert 'class="node stale" data-node="old&lt;b&gt;"' in html
+    assert "<b>.json" not in html and "old<b>" not in html
+    assert html.count("stale") >= 2 and "broken" not in html
+    n.store.close()
+
+
+def test_waitress_serves_and_stops(tmp_path):
+    from dataclasses import replace
+    config = make_config(tmp_path)
+    config = replace(config, web=replace(config.web, port=0))
+    for d in ("drop_dir", "state_dir", "outbox_dir"):
+        getattr(config, d).mkdir(parents=True, exist_ok=True)
+    web = server.start(config)
+    assert web is not None and web.url.startswith("http://127.0.0.1:")
+    try:
+        status, body = get_json(web.url + "api/status")
+        assert status == 200 and body["node_id"] == "n1"
+        status, body = get_json(web.url + "api/jobs/x/cancel", method="POST")
+        assert status == 401
+        # A second server on the same port is refused with a log line, not an exception.
+        busy = replace(config, web=replace(config.web, port=int(web.url.rsplit(":", 1)[1][:-1])))
+        assert server.start(busy) is None
+    finally:
+        web.stop()
+    assert not web.thread.is_alive()
