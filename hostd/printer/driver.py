@@ -175,9 +175,9 @@ class Driver:
         if kind == "call":
             _, name, args, future = item
             if name == "close":
-                self._finish_job(INTERRUPTED, "link closed")
                 self._drop_port()
                 self._set_state(DISCONNECTED)
+                self._finish_job(INTERRUPTED, "link closed")
                 if future:
                     future.set_result(None)
                 return "close"
@@ -271,8 +271,8 @@ class Driver:
         """The port failed: the job (if any) is interrupted where it was confirmed."""
         self._drop_port()
         self.last_error = reason
-        self._finish_job(INTERRUPTED, reason)
         self._set_state(DISCONNECTED)
+        self._finish_job(INTERRUPTED, reason)
 
     # -- requests ------------------------------------------------------------------------
 
@@ -335,12 +335,12 @@ class Driver:
             self._priority.append((command, ("user",)))
 
     def _do_estop(self):
-        self._finish_job(ERROR, "emergency stop")
         self.last_error = "emergency stop (M112)"
         self._abandon_stream()
         # Without EMERGENCY_PARSER the M112 waits behind the queued commands.
         self._emit("estop", emergency_parser=bool(self.capabilities.get("EMERGENCY_PARSER")))
         self._set_state(ERROR_STATE)
+        self._finish_job(ERROR, "emergency stop")
 
     def _abandon_stream(self):
         """Stop waiting for answers and drop anything queued (the firmware is halted)."""
@@ -413,17 +413,17 @@ class Driver:
         if self._state == ERROR_STATE:
             return
         self.last_error = text
-        self._finish_job(ERROR, text)
         self._abandon_stream()
         self._set_state(ERROR_STATE)
+        self._finish_job(ERROR, text)
         if not any(word in text.lower() for word in _FATAL_WORDS):
             self._queue_script("error", self.settings.error_gcode)  # it still listens
 
     def _fatal(self, code, message):
         self.last_error = "%s: %s" % (code, message)
-        self._finish_job(ERROR, message)
         self._abandon_stream()
         self._set_state(ERROR_STATE)
+        self._finish_job(ERROR, message)
 
     # -- sending -------------------------------------------------------------------------
 
@@ -509,14 +509,14 @@ class Driver:
         if job is not None and job.result is None:
             settled = self._flow.settled()
             if job.phase == PRINTING and settled and job.peek() is None:
+                self._set_state(IDLE)       # state first: whoever waits on the job sees it
                 self._finish_job(DONE)
-                self._set_state(IDLE)
             elif job.phase == PAUSING and settled:
                 job.phase = PAUSED
                 self._set_state(PAUSED)
             elif job.phase == CANCELLING and settled:
-                self._finish_job(CANCELLED)
                 self._set_state(IDLE)
+                self._finish_job(CANCELLED)
             elif job.phase == PRINTING and self._state in (PRINTING, HEATING):
                 head = self._flow.head_command()[:4]
                 self._set_state(HEATING if head in _BLOCKING_HEAT else PRINTING)

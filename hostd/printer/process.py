@@ -1,0 +1,283 @@
+"""The driver in its own process: :class:`PrinterProcess`, same interface as ``Printer``.
+
+A thread is not enough to keep CPU-heavy Python work (path planning) from stalling the
+stream: every line needs the GIL a couple of times, and with busy Python threads in the
+same process each handoff waits up to the switch interval (5 ms). Measured with
+``benchmarks/serial.py --cpu-load``: one busy thread already starves the planner at 80 mm/s.
+Here the link runs in a child process (spawned, so it inherits no locks or threads) and
+the parent keeps a mirror of its state, updated from the events the child forwards.
+
+Differences from ``Printer``: ``start`` takes a path or a list of lines (an iterator is
+read into a list first) and returns a :class:`JobProxy`; ``on_event`` runs in the
+parent's pipe thread; ``simulator`` is None (``sim://`` runs in the child).
+"""
+
+import itertools
+import os
+import socket
+import subprocess
+import sys
+import threading
+from multiprocessing.connection import Connection
+
+from hostd.printer.driver import DISCONNECTED, Event
+from hostd.printer.errors import PrinterError
+from hostd.printer.settings import LinkSettings
+
+_CALL_TIMEOUT_S = 30.0
+
+
+class JobProxy:
+    """Parent-side view of a job running in the child (snapshot dict semantics of Job)."""
+
+    def __init__(self, snapshot):
+        self._snapshot = snapshot
+        self._finished = threading.Event()
+        self.id = snapshot["id"]
+
+    def _update(self, snapshot):
+        self._snapshot = snapshot
+        if snapshot["result"] is not None:
+            self._finished.set()
+
+    def snapshot(self):
+        return dict(self._snapshot)
+
+    def wait(self, timeout_s=None):
+        return self._finished.wait(timeout_s)
+
+    def __getattr__(self, name):
+        snapshot = self.__dict__.get("_snapshot") or {}
+        if name in snapshot:
+            return snapshot[name]
+        raise AttributeError(name)
+
+
+class _Temps:
+    """Mirror of the child's TemperatureLog (current values and history)."""
+
+    def __init__(self):
+        self._current, self._history = {}, {}
+
+    def current(self):
+        return dict(self._current)
+
+    def history(self, heater=None):
+        if heater is None:
+            return {h: list(v) for h, v in self._history.items()}
+        return {heater: list(self._history.get(heater, ()))}
+
+
+class PrinterProcess:
+    """``Printer`` running in a child process (see module docstring)."""
+
+    def __init__(self, port, settings=None, on_event=None):
+        self.port_url = port
+        self.settings = settings or LinkSettings()
+        self.on_event = on_event
+        self.simulator = None
+        self.state = DISCONNECTED
+        self.job = None
+        self.temperatures = _Temps()
+        self.capabilities, self.firmware_info, self.stats, self.last_error = {}, {}, {}, None
+        self._subscribers = []
+        self._calls = {}
+        self._ids = itertools.count(1)
+        self._lock = threading.Lock()
+        # A fresh interpreter (not multiprocessing's spawn, which re-imports the caller's
+        # __main__), talking pickles over a socketpair.
+        ours, theirs = socket.socketpair()
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", "hostd.printer.process", str(theirs.fileno())],
+            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
+        theirs.close()
+        self._conn = Connection(ours.detach())
+        self._conn.send((port, self.settings))
+        self._listener = threading.Thread(target=self._listen, name="hostd-link-pipe", daemon=True)
+        self._listener.start()
+
+    # -- the Printer interface -------------------------------------------------------------
+
+    def connect(self, timeout_s=None):
+        return self._call("connect", timeout_s, timeout_s=(timeout_s or _CALL_TIMEOUT_S) + 5)
+
+    def start(self, source, job_id=None, start_line=1):
+        if not isinstance(source, (str, list, tuple)) and not hasattr(source, "__fspath__"):
+            source = list(source)
+        snapshot = self._call("start", str(source) if hasattr(source, "__fspath__") else source,
+                              job_id, start_line)
+        with self._lock:
+            self.job = JobProxy(snapshot)
+        return self.job
+
+    def pause(self):
+        return self._call("pause")
+
+    def resume(self):
+        return self._call("resume")
+
+    def cancel(self):
+        return self._call("cancel")
+
+    def send(self, command):
+        return self._call("send", command)
+
+    def estop(self):
+        return self._call("estop")
+
+    def wait(self, timeout_s=None):
+        job = self.job
+        if job is None:
+            return None
+        return job.snapshot() if job.wait(timeout_s) else None
+
+    def progress(self):
+        job = self.job
+        return job.snapshot() if job else {}
+
+    def subscribe(self, maxsize=10000):
+        import queue
+        events = queue.Queue(maxsize)
+        self._subscribers.append(events)
+        return events
+
+    def close(self):
+        if self._process.poll() is None:
+            try:
+                self._call("close", timeout_s=10)
+            except PrinterError:
+                pass
+        try:
+            self._process.wait(10)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+        self._conn.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- plumbing --------------------------------------------------------------------------
+
+    def _call(self, name, *args, timeout_s=_CALL_TIMEOUT_S):
+        call_id = next(self._ids)
+        waiter = [threading.Event(), None]
+        self._calls[call_id] = waiter
+        try:
+            with self._lock:
+                self._conn.send(("call", call_id, name, args))
+        except (OSError, EOFError) as exc:
+            raise PrinterError("internal", "link process is gone: %s" % exc) from exc
+        if not waiter[0].wait(timeout_s):
+            self._calls.pop(call_id, None)
+            raise PrinterError("timeout", "%s: link process did not answer in %.1f s" % (name, timeout_s))
+        kind, value = waiter[1]
+        if kind == "error":
+            raise PrinterError(*value)
+        return value
+
+    def _listen(self):
+        while True:
+            try:
+                message = self._conn.recv()
+            except (EOFError, OSError):
+                break
+            if message[0] in ("result", "error"):
+                waiter = self._calls.pop(message[1], None)
+                if waiter is not None:
+                    waiter[1] = (message[0], message[2])
+                    waiter[0].set()
+            elif message[0] == "event":
+                self._on_event(Event(*message[1]), message[2])
+        self.state = DISCONNECTED
+        for waiter in list(self._calls.values()):
+            waiter[1] = ("error", ("internal", "link process ended"))
+            waiter[0].set()
+        job = self.job
+        if job is not None and job._snapshot["result"] is None:
+            job._update(dict(job._snapshot, result="interrupted", interrupted=True,
+                             error="link process ended"))
+
+    def _on_event(self, event, mirror):
+        self.state = mirror["state"]
+        self.capabilities, self.firmware_info = mirror["capabilities"], mirror["firmware"]
+        self.stats, self.last_error = mirror["stats"], mirror["last_error"]
+        self.temperatures._current = mirror["temps"]
+        if event.kind == "temperature":
+            for heater, value in mirror["temps"].items():
+                history = self.temperatures._history.setdefault(heater, [])
+                history.append((event.time, value["current"], value["target"]))
+                del history[:-self.settings.temp_history]
+        job = self.job
+        if job is not None and mirror["job"] is not None and mirror["job"]["id"] == job.id:
+            job._update(mirror["job"])
+        if self.on_event is not None:
+            try:
+                self.on_event(event)
+            except Exception:
+                import traceback
+                traceback.print_exc()
+        for events in self._subscribers:
+            try:
+                events.put_nowait(event)
+            except Exception:
+                pass
+
+
+def _child_main(conn):
+    """Child process: a thread-based Printer, driven through the pipe."""
+    from hostd.printer.link import Printer
+
+    port, settings = conn.recv()
+    send_lock = threading.Lock()
+
+    def forward(event):
+        job = printer.job
+        mirror = dict(state=printer.state, job=job.snapshot() if job else None,
+                      temps=printer.temperatures.current(), stats=dict(printer.stats),
+                      capabilities=dict(printer.capabilities), firmware=dict(printer.firmware_info),
+                      last_error=printer.last_error)
+        with send_lock:
+            try:
+                conn.send(("event", (event.kind, event.data, event.time), mirror))
+            except (OSError, EOFError):
+                pass
+
+    printer = Printer(port, settings, on_event=forward)
+    while True:
+        try:
+            _, call_id, name, args = conn.recv()
+        except (EOFError, OSError):
+            name, call_id, args = "close", None, ()
+        try:
+            if name == "close":
+                printer.close()
+                value = None
+            elif name == "start":
+                value = printer.start(*args).snapshot()
+            else:
+                value = getattr(printer, name)(*args)
+            reply = ("result", call_id, value)
+        except PrinterError as exc:
+            reply = ("error", call_id, (exc.code, exc.message))
+        except Exception as exc:  # a bug: report it to the caller rather than hang it
+            reply = ("error", call_id, ("internal", "%s failed: %r" % (name, exc)))
+        if call_id is not None:
+            with send_lock:
+                try:
+                    conn.send(reply)
+                except (OSError, EOFError):
+                    return
+        if name == "close":
+            return
+
+
+if __name__ == "__main__":
+    try:
+        os.nice(-5)   # ahead of the planner when allowed (root); harmless otherwise
+    except OSError:
+        pass
+    _child_main(Connection(int(sys.argv[1])))
