@@ -19,6 +19,7 @@ import shapely
 from scipy import ndimage
 
 from pipeline.errors import MeshingError
+from pipeline.geometry import polygon_area
 
 PAD_PX = 4
 
@@ -159,19 +160,14 @@ def footprint_outline(field, spacing_mm):
     if not closed:
         raise MeshingError("the footprint has no closed outline", code="mesh.no_outline",
                            fix="check that the height field has a footprint of data")
-    ring = max(closed, key=lambda ln: abs(_signed_area(ln)))
+    ring = max(closed, key=lambda ln: abs(polygon_area(ln)))
     ring = ring[:-1]
-    if _signed_area(ring) < 0:
+    if polygon_area(ring) < 0:
         ring = ring[::-1]
     piece = Piece(ring, True, np.nan, "outline")
     n = max(int(np.ceil(piece.length / spacing_mm)), 8)
     pts = piece.at(np.linspace(0, piece.length, n, endpoint=False))
     return pts, shapely.Polygon(pts)
-
-
-def _signed_area(pts):
-    x, y = pts[:, 0], pts[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
 def isoline_pieces(field, polygon, levels, min_length_mm):

@@ -20,7 +20,7 @@ import numpy as np
 import shapely
 
 from pipeline.errors import MeshingError
-from pipeline.geometry import Mesh, signed_areas_2d, unique_edges
+from pipeline.geometry import Mesh, polygon_area, signed_areas_2d, unique_edges
 from pipeline.gradient import Snapper, trace
 from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces, points_at
 from pipeline.triangulate import ear_clip, fan, zip_strips
@@ -324,7 +324,7 @@ class _Graph:
         peaks = saddles = 0
         for cycle in faces_he:
             ring = np.concatenate([he[h][3] for h in cycle]).astype(np.int64)
-            if _ring_area(xy[ring]) <= 0:
+            if polygon_area(xy[ring]) <= 0:
                 continue  # the outer face
             runs = _main_runs(cycle, he, self.pieces)
             if len(runs) == 2 and _run_level(runs[0], cycle, he, self.pieces) != \
@@ -470,11 +470,6 @@ def _trace_faces(xy, he):
             h = nxt[h]
         faces.append(cyc)
     return faces
-
-
-def _ring_area(p):
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
 def _peak(field, ring_xy):

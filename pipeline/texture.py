@@ -31,7 +31,7 @@ from PIL import Image
 from scipy.ndimage import map_coordinates
 
 from pipeline.errors import PlanError
-from pipeline.geometry import face_areas
+from pipeline.geometry import boundary_loops, face_areas
 from pipeline.raster import draw_segments, pixel_barycentrics, rasterize_triangles
 
 __all__ = ["MM_PER_INCH", "MARK_NAMES", "vertex_colors", "face_opacity", "registration_marks",
@@ -312,55 +312,6 @@ def save_texture(image, out, dpi=None):
     """
     dpi = float(dpi if dpi is not None else image.info["dpi"][0])
     image.save(out, format="PNG", dpi=(dpi, dpi))
-
-
-def boundary_loops(faces):
-    """Boundary loops of a triangle mesh, oriented like its faces.
-
-    Parameters
-    ----------
-    faces : (m, 3) int, consistently oriented
-
-    Returns
-    -------
-    loops : list of (k,) int
-        Vertex indices of each closed loop (first vertex not repeated), longest
-        first. Loops run along each face's own winding, so with counter-clockwise
-        faces the outer boundary is counter-clockwise and holes clockwise.
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    he = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    n = int(faces.max(initial=0)) + 1
-    key = he[:, 0] * n + he[:, 1]
-    twin = he[:, 1] * n + he[:, 0]
-    # A half-edge is on the boundary when no face runs its reverse.
-    border = he[~np.isin(key, twin)]
-    if len(border) == 0:
-        return []
-    order = np.argsort(border[:, 0], kind="stable")
-    border = border[order]
-    starts = np.searchsorted(border[:, 0], np.arange(n + 1))
-    used = np.zeros(len(border), bool)
-    loops = []
-    # Walk boundary half-edges (O(boundary), not a hot path); a pinch vertex
-    # with two outgoing boundary edges just yields two loops.
-    for first in range(len(border)):
-        if used[first]:
-            continue
-        loop = []
-        e = first
-        while not used[e]:
-            used[e] = True
-            loop.append(border[e, 0])
-            v = border[e, 1]
-            cand = np.arange(starts[v], starts[v + 1])
-            cand = cand[~used[cand]]
-            if len(cand) == 0:
-                break
-            e = cand[0]
-        loops.append(np.asarray(loop, dtype=np.int64))
-    loops.sort(key=len, reverse=True)
-    return loops
 
 
 def _fmt(v):

@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from pipeline.geometry import signed_areas_2d, unique_edges
+from pipeline.geometry import boundary_loops, signed_areas_2d, unique_edges
 
 
 @dataclass
@@ -407,19 +407,8 @@ def _densify(points, step):
 
 
 def boundary_loop(faces):
-    """Boundary vertex ids of a disk mesh in order: (k,) int."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    b = e[cnt[inv.ravel()] == 1]                   # directed, interior on the left
-    nxt = dict(zip(b[:, 0].tolist(), b[:, 1].tolist()))
-    start = int(b[0, 0])
-    loop = [start]
-    v = nxt[start]
-    while v != start and len(loop) <= len(b):
-        loop.append(v)
-        v = nxt[v]
-    return np.asarray(loop)
+    """Outer boundary vertex ids of a disk mesh in order: (k,) int."""
+    return boundary_loops(faces)[0]
 
 
 def _outline_polygon(xy, faces):
