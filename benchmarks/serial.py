@@ -10,6 +10,9 @@ through ``hostd sim-printer`` (a separate process on a real pty, as a printer wo
   the same simulator; target: within 10 %.
 - ``round_trip_limit``: that minimal loop, plus the wire-only bound
   (line + ok bytes at baud/10).
+- ``cpu_load_115200``: the 80 mm/s run again with busy Python threads in the host
+  process (a planner's stand-in), link in a thread (``Printer``) versus in its own
+  process (``PrinterProcess``).
 - ``starvation_115200``: at 115200 baud, the printer moving in real time (time_scale 1)
   at print speeds of 40, 80 and 120 mm/s: seconds the planner sat empty between moves
   (target: 0). The first move starts from rest and is not counted.
@@ -26,6 +29,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -36,7 +40,7 @@ sys.path.insert(0, ROOT)
 
 import serial  # noqa: E402
 
-from hostd.printer import LinkSettings, Printer  # noqa: E402
+from hostd.printer import LinkSettings, Printer, PrinterProcess  # noqa: E402
 from hostd.printer import protocol  # noqa: E402
 
 TARGET_SEND_AHEAD_UTILISATION = 0.90
@@ -108,12 +112,13 @@ class SimProcess:
             return json.load(handle)["stats"]
 
 
-def stream(folder, baud, lines, send_ahead, sim_flags, feed_mm_min=None, real_time=False):
+def stream(folder, baud, lines, send_ahead, sim_flags, feed_mm_min=None, real_time=False, process=False):
     sim = SimProcess(folder, baud, *sim_flags)
     body = list(lines)
     if feed_mm_min:
         body.insert(0, "G1 F%d" % feed_mm_min)
-    printer = Printer(sim.link, LinkSettings(baud=baud, send_ahead=send_ahead, reconnect=False))
+    link_class = PrinterProcess if process else Printer
+    printer = link_class(sim.link, LinkSettings(baud=baud, send_ahead=send_ahead, reconnect=False))
     try:
         printer.connect()
         printer.start(body)
@@ -169,6 +174,33 @@ def round_trip_limit(folder, baud, lines, count):
                 wire_only_lines_per_s=round(1.0 / wire_s, 1), mean_line_bytes=round(mean_line, 1))
 
 
+def cpu_load(folder, lines, threads, speed_mm_s=80.0):
+    """Starvation at 115200 baud, 80 mm/s, with busy Python threads in the host process:
+    the link in a thread of that process versus the link in its own process."""
+    stop = threading.Event()
+
+    def burn():
+        while not stop.is_set():
+            sum(i * i for i in range(10000))
+
+    result = dict(busy_threads=threads, print_speed_mm_s=speed_mm_s, moves=len(lines))
+    for mode, process in (("thread", False), ("process", True)):
+        stop.clear()
+        burners = [threading.Thread(target=burn, daemon=True) for _ in range(threads)]
+        for thread in burners:
+            thread.start()
+        try:
+            run = stream(folder, 115200, lines, True, ["--advanced-ok", "1", "--time-scale", "1"],
+                         feed_mm_min=int(speed_mm_s * 60), real_time=True, process=process)
+        finally:
+            stop.set()
+            for thread in burners:
+                thread.join()
+        run["meets_target"] = run["starvation_s"] == 0.0
+        result[mode] = run
+    return result
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--gcode", help="stream this file instead of generated moves")
@@ -177,6 +209,10 @@ def main(argv=None):
     parser.add_argument("--limit-lines", type=int, default=3000, help="lines for the round-trip limit")
     parser.add_argument("--starvation-lines", type=int, default=3000,
                         help="moves streamed in real time for the starvation figure")
+    parser.add_argument("--cpu-load", type=int, default=3,
+                        help="busy Python threads in this process for the load runs (default 3)")
+    parser.add_argument("--sections", default="link,starvation,cpu_load",
+                        help="which parts to run (default link,starvation,cpu_load)")
     parser.add_argument("--print-speeds", default="40,80,120",
                         help="mm/s for the real-time starvation runs (default 40,80,120)")
     args = parser.parse_args(argv)
@@ -188,8 +224,9 @@ def main(argv=None):
                                ping_pong_of_round_trip_limit=TARGET_PING_PONG_OF_LIMIT,
                                starvation_s=0.0),
                   runs={})
+    sections = args.sections.split(",")
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as folder:
-        for baud in [int(b) for b in args.bauds.split(",")]:
+        for baud in [int(b) for b in args.bauds.split(",")] if "link" in sections else []:
             fast = ["--time-scale", "0", "--autoreport", "1"]
             run = dict(
                 send_ahead=stream(folder, baud, lines, True, ["--advanced-ok", "1"] + fast),
@@ -202,8 +239,11 @@ def main(argv=None):
             report["runs"][str(baud)] = run
             print("baud %d done" % baud, file=sys.stderr)
         realistic = lines[:args.starvation_lines]
+        if "cpu_load" in sections:
+            report["cpu_load_115200"] = cpu_load(folder, realistic, args.cpu_load)
+            print("cpu load runs done", file=sys.stderr)
         report["starvation_115200"] = []
-        for speed in [float(v) for v in args.print_speeds.split(",")]:
+        for speed in [float(v) for v in args.print_speeds.split(",")] if "starvation" in sections else []:
             row = dict(print_speed_mm_s=speed, moves=len(realistic),
                        moves_per_s_needed=round(speed / _mean_move_mm(realistic), 1))
             for mode, send_ahead, advanced in (("send_ahead", True, "1"), ("ping_pong", False, "0")):

@@ -13,7 +13,6 @@ parent's pipe thread; ``simulator`` is None (``sim://`` runs in the child).
 """
 
 import itertools
-import os
 import socket
 import subprocess
 import sys
@@ -88,7 +87,7 @@ class PrinterProcess:
         # __main__), talking pickles over a socketpair.
         ours, theirs = socket.socketpair()
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "hostd.printer.process", str(theirs.fileno())],
+            [sys.executable, "-m", "hostd.printer.child", str(theirs.fileno())],
             pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
         theirs.close()
         self._conn = Connection(ours.detach())
@@ -225,59 +224,3 @@ class PrinterProcess:
                 events.put_nowait(event)
             except Exception:
                 pass
-
-
-def _child_main(conn):
-    """Child process: a thread-based Printer, driven through the pipe."""
-    from hostd.printer.link import Printer
-
-    port, settings = conn.recv()
-    send_lock = threading.Lock()
-
-    def forward(event):
-        job = printer.job
-        mirror = dict(state=printer.state, job=job.snapshot() if job else None,
-                      temps=printer.temperatures.current(), stats=dict(printer.stats),
-                      capabilities=dict(printer.capabilities), firmware=dict(printer.firmware_info),
-                      last_error=printer.last_error)
-        with send_lock:
-            try:
-                conn.send(("event", (event.kind, event.data, event.time), mirror))
-            except (OSError, EOFError):
-                pass
-
-    printer = Printer(port, settings, on_event=forward)
-    while True:
-        try:
-            _, call_id, name, args = conn.recv()
-        except (EOFError, OSError):
-            name, call_id, args = "close", None, ()
-        try:
-            if name == "close":
-                printer.close()
-                value = None
-            elif name == "start":
-                value = printer.start(*args).snapshot()
-            else:
-                value = getattr(printer, name)(*args)
-            reply = ("result", call_id, value)
-        except PrinterError as exc:
-            reply = ("error", call_id, (exc.code, exc.message))
-        except Exception as exc:  # a bug: report it to the caller rather than hang it
-            reply = ("error", call_id, ("internal", "%s failed: %r" % (name, exc)))
-        if call_id is not None:
-            with send_lock:
-                try:
-                    conn.send(reply)
-                except (OSError, EOFError):
-                    return
-        if name == "close":
-            return
-
-
-if __name__ == "__main__":
-    try:
-        os.nice(-5)   # ahead of the planner when allowed (root); harmless otherwise
-    except OSError:
-        pass
-    _child_main(Connection(int(sys.argv[1])))

@@ -1,0 +1,67 @@
+"""Entry point of the link's child process (see :mod:`hostd.printer.process`).
+
+``python -m hostd.printer.child FD``: a thread-based Printer driven over the socket FD.
+"""
+
+import os
+import sys
+import threading
+from multiprocessing.connection import Connection
+
+from hostd.printer.errors import PrinterError
+
+
+def _child_main(conn):
+    """Child process: a thread-based Printer, driven through the pipe."""
+    from hostd.printer.link import Printer
+
+    port, settings = conn.recv()
+    send_lock = threading.Lock()
+
+    def forward(event):
+        job = printer.job
+        mirror = dict(state=printer.state, job=job.snapshot() if job else None,
+                      temps=printer.temperatures.current(), stats=dict(printer.stats),
+                      capabilities=dict(printer.capabilities), firmware=dict(printer.firmware_info),
+                      last_error=printer.last_error)
+        with send_lock:
+            try:
+                conn.send(("event", (event.kind, event.data, event.time), mirror))
+            except (OSError, EOFError):
+                pass
+
+    printer = Printer(port, settings, on_event=forward)
+    while True:
+        try:
+            _, call_id, name, args = conn.recv()
+        except (EOFError, OSError):
+            name, call_id, args = "close", None, ()
+        try:
+            if name == "close":
+                printer.close()
+                value = None
+            elif name == "start":
+                value = printer.start(*args).snapshot()
+            else:
+                value = getattr(printer, name)(*args)
+            reply = ("result", call_id, value)
+        except PrinterError as exc:
+            reply = ("error", call_id, (exc.code, exc.message))
+        except Exception as exc:  # a bug: report it to the caller rather than hang it
+            reply = ("error", call_id, ("internal", "%s failed: %r" % (name, exc)))
+        if call_id is not None:
+            with send_lock:
+                try:
+                    conn.send(reply)
+                except (OSError, EOFError):
+                    return
+        if name == "close":
+            return
+
+
+if __name__ == "__main__":
+    try:
+        os.nice(-5)   # ahead of the planner when allowed (root); harmless otherwise
+    except OSError:
+        pass
+    _child_main(Connection(int(sys.argv[1])))
