@@ -7,6 +7,8 @@ import sys
 import threading
 import time
 
+import pytest
+
 from hostd.printer import LinkSettings
 from hostd.printer.process import PrinterProcess
 from hostd.printer.sim import Simulator
@@ -39,6 +41,7 @@ def test_process_link_streams_exactly_and_mirrors_state():
         sim.stop()
 
 
+@pytest.mark.slow     # burns three cores' worth of Python on purpose
 def test_process_link_keeps_streaming_while_this_process_is_busy(tmp_path):
     """Busy Python threads here cannot take the GIL from the link in its own process.
 
