@@ -78,6 +78,19 @@ def running_pid(lock_path):
         os.close(fd)
 
 
+def link_settings(printer_config):
+    """The link's settings for one printer: its baud and its profile's scripts, so a
+    pause parks, a resume unparks and a cancel runs this printer's own cancel G-code."""
+    from hostd.printer import LinkSettings
+    from pipeline.profile import load_profile
+
+    profile = load_profile(printer_config.profile)
+    return LinkSettings(baud=printer_config.baud,
+                        pause_gcode=profile.render_gcode("pause"),
+                        resume_gcode=profile.render_gcode("resume"),
+                        cancel_gcode=profile.render_gcode("cancel"))
+
+
 class Slot:
     """One configured printer: its link (connected in the background) and current job."""
 
@@ -99,14 +112,15 @@ class Slot:
         self._thread.start()
 
     def _connect(self):
-        from hostd.printer import LinkSettings, Printer, PrinterError
+        from hostd.printer import Printer, PrinterError
+        from pipeline.errors import PipelineError
         try:
             if self.printer is None:
-                self.printer = Printer(self.config.port, LinkSettings(baud=self.config.baud))
+                self.printer = Printer(self.config.port, link_settings(self.config))
             self.printer.connect()
             self.error = None
             log.info("printer %s connected (%s)", self.name, self.config.port)
-        except (PrinterError, OSError) as exc:
+        except (PrinterError, PipelineError, OSError) as exc:
             self.error = str(exc)
             log.warning("printer %s: cannot connect: %s", self.name, exc)
 

@@ -208,3 +208,39 @@ def test_two_daemons_share_one_drop_folder(tmp_path, dome):
     assert sorted(p.name for p in day.glob("*.npy")) == names
     nodes = {p.stem for p in (share / "drop" / ".hostd" / "nodes").glob("*.json")}
     assert nodes == {"a", "b"}
+
+
+@pytest.mark.slow
+def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pty_sim):
+    from hostd.printer.settings import script_lines
+    from pipeline.profile import load_profile
+
+    sim, port = pty_sim
+    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+                                            "port": port, "baud": 115200}])
+    with daemon(cfg) as d:
+        drop(dome, tmp_path / "share" / "drop", "dome.npy")
+        wait_for(lambda: states(cfg).get("dome.npy") == "printing", timeout=60, proc=d,
+                 what="printing")
+        r = hostd("pause", "p1", "-c", cfg)
+        assert r.returncode == 0, r.stderr
+        time.sleep(1.0)                    # the pause script has run by now
+        before = len(sim.commands())
+        time.sleep(1.0)
+        assert len(sim.commands()) == before, "the printer was fed while paused"
+        assert states(cfg)["dome.npy"] == "printing"
+        r = hostd("resume", "p1", "-c", cfg)
+        assert r.returncode == 0, r.stderr
+        wait_for(lambda: states(cfg).get("dome.npy") == "done", timeout=120, proc=d,
+                 what="done")
+        assert d.stop() == 0
+    job = jobs(cfg)[0]
+    gcode = gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
+    done = job_commands(sim)
+    prof = load_profile("generic-0.5mm")
+    park = script_lines(prof.render_gcode("pause"))
+    unpark = script_lines(prof.render_gcode("resume"))
+    # Exactly the file, with the profile's park and unpark between two of its lines.
+    k = next(i for i, (a, b) in enumerate(zip(done, gcode)) if a != b)
+    assert done[k:k + len(park) + len(unpark)] == park + unpark
+    assert done[:k] + done[k + len(park) + len(unpark):] == gcode
