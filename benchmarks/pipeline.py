@@ -46,13 +46,15 @@ from pipeline.mesh import build_mesh
 from pipeline.flatten import flatten
 target = int(sys.argv[1])
 hf = shapes.dome(diameter_mm=175.0, height_mm=33.0)
-# Triangle count scales with 1 / l_u: one calibration mesh, then the real one.
-n0 = len(build_mesh(hf, l_u_mm=1.0).faces)
-mesh = build_mesh(hf, l_u_mm=max(n0 / target, 0.02))
+# Refine isoline step and l_u together (the paper's 1 mm : 0.25 mm), so triangles keep
+# their shape and the count scales with 1 / l_u^2: one calibration mesh, then the real one.
+n0 = len(build_mesh(hf, l_u_mm=1.0, isoline_step_mm=4.0, gradient_spacing_mm=8.0).faces)
+lu = (n0 / target) ** 0.5
+mesh = build_mesh(hf, l_u_mm=lu, isoline_step_mm=4.0 * lu, gradient_spacing_mm=8.0 * lu)
 t = time.perf_counter()
 res = flatten(mesh, iterations=50, tol=0.0)
 dt = time.perf_counter() - t
-print(json.dumps({"triangles": len(mesh.faces), "iterations": res.iterations,
+print(json.dumps({"triangles": len(mesh.faces), "l_u_mm": round(lu, 3), "iterations": res.iterations,
                   "flatten_s": round(dt, 3), "setup_s": round(res.timing_s["setup"], 3),
                   "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))
 """
