@@ -11,12 +11,12 @@ import time
 import traceback
 from collections import deque
 from concurrent.futures import Future
-from dataclasses import dataclass, field
 
 import serial
 
 from hostd.printer import protocol
 from hostd.printer.errors import PrinterError
+from hostd.printer.events import Event, Publisher
 from hostd.printer.flow import LineFlow, Sent
 from hostd.printer.handshake import handshake
 from hostd.printer.job import CANCELLED, CANCELLING, DONE, ERROR, INTERRUPTED
@@ -30,14 +30,7 @@ _BLOCKING_HEAT = ("M109", "M190", "M191")
 _FATAL_WORDS = ("halted", "kill", "stopped")
 
 
-@dataclass
-class Event:
-    kind: str
-    data: dict = field(default_factory=dict)
-    time: float = field(default_factory=time.time)
-
-
-class Driver:
+class Driver(Publisher):
     """State and thread of the link; :class:`~hostd.printer.link.Printer` is its public face."""
 
     def __init__(self, port, settings, on_event, simulator):
@@ -78,22 +71,7 @@ class Driver:
             raise PrinterError("timeout", "%s: driver did not answer in %.1f s" % (name, timeout_s)) from None
 
     def _emit(self, kind, **data):
-        event = Event(kind, data)
-        if self.on_event is not None:
-            try:
-                self.on_event(event)
-            except Exception:
-                # The listener's bug must not stop the print: report it and carry on.
-                traceback.print_exc()
-        for events in self._subscribers:
-            try:
-                events.put_nowait(event)
-            except queue.Full:
-                try:
-                    events.get_nowait()
-                    events.put_nowait(event)
-                except (queue.Empty, queue.Full):
-                    pass
+        self._publish(Event(kind, data))
 
     def _set_state(self, state):
         if state != self._state:

@@ -16,13 +16,13 @@ queues from :meth:`Printer.subscribe`): :class:`Event` with ``kind`` in ``state`
 (``echo:`` and other firmware chatter), ``estop``, ``connected``.
 """
 
-import queue
 import threading
 import time
 
 import serial
 
-from hostd.printer.driver import CONNECTING, DISCONNECTED, ERROR_STATE, HEATING, IDLE, Driver, Event
+from hostd.printer.driver import CONNECTING, DISCONNECTED, ERROR_STATE, HEATING, IDLE, Driver
+from hostd.printer.events import Event
 from hostd.printer.errors import PrinterError
 from hostd.printer.job import Job
 from hostd.printer.job import PAUSED, PRINTING
@@ -105,24 +105,6 @@ class Printer(Driver):
             sent_at = time.monotonic()
         self._inbox.put(("call", "estop", (), None))
         return sent_at
-
-    def wait(self, timeout_s=None):
-        """Wait for the current job to finish; returns its snapshot (None on timeout)."""
-        job = self.job
-        if job is None:
-            return None
-        return job.snapshot() if job.wait(timeout_s) else None
-
-    def progress(self):
-        """Job progress: confirmed/total lines and bytes (empty dict without a job)."""
-        job = self.job
-        return job.snapshot() if job else {}
-
-    def subscribe(self, maxsize=10000):
-        """A queue receiving every Event from now on (oldest dropped when full)."""
-        events = queue.Queue(maxsize)
-        self._subscribers.append(events)
-        return events
 
     def close(self):
         """Disconnect and stop the driver thread (and the in-process simulator)."""

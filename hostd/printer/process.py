@@ -19,9 +19,11 @@ import sys
 import threading
 from multiprocessing.connection import Connection
 
-from hostd.printer.driver import DISCONNECTED, Event
+from hostd.printer.driver import DISCONNECTED
 from hostd.printer.errors import PrinterError
+from hostd.printer.events import Event, Publisher
 from hostd.printer.settings import LinkSettings
+from hostd.printer.temps import TemperatureLog
 
 _CALL_TIMEOUT_S = 30.0
 
@@ -52,22 +54,7 @@ class JobProxy:
         raise AttributeError(name)
 
 
-class _Temps:
-    """Mirror of the child's TemperatureLog (current values and history)."""
-
-    def __init__(self):
-        self._current, self._history = {}, {}
-
-    def current(self):
-        return dict(self._current)
-
-    def history(self, heater=None):
-        if heater is None:
-            return {h: list(v) for h, v in self._history.items()}
-        return {heater: list(self._history.get(heater, ()))}
-
-
-class PrinterProcess:
+class PrinterProcess(Publisher):
     """``Printer`` running in a child process (see module docstring)."""
 
     def __init__(self, port, settings=None, on_event=None):
@@ -77,7 +64,7 @@ class PrinterProcess:
         self.simulator = None
         self.state = DISCONNECTED
         self.job = None
-        self.temperatures = _Temps()
+        self.temperatures = TemperatureLog(self.settings.temp_history)
         self.capabilities, self.firmware_info, self.stats, self.last_error = {}, {}, {}, None
         self._subscribers = []
         self._calls = {}
@@ -123,22 +110,6 @@ class PrinterProcess:
 
     def estop(self):
         return self._call("estop")
-
-    def wait(self, timeout_s=None):
-        job = self.job
-        if job is None:
-            return None
-        return job.snapshot() if job.wait(timeout_s) else None
-
-    def progress(self):
-        job = self.job
-        return job.snapshot() if job else {}
-
-    def subscribe(self, maxsize=10000):
-        import queue
-        events = queue.Queue(maxsize)
-        self._subscribers.append(events)
-        return events
 
     def close(self):
         if self._process.poll() is None:
@@ -204,23 +175,10 @@ class PrinterProcess:
         self.state = mirror["state"]
         self.capabilities, self.firmware_info = mirror["capabilities"], mirror["firmware"]
         self.stats, self.last_error = mirror["stats"], mirror["last_error"]
-        self.temperatures._current = mirror["temps"]
         if event.kind == "temperature":
-            for heater, value in mirror["temps"].items():
-                history = self.temperatures._history.setdefault(heater, [])
-                history.append((event.time, value["current"], value["target"]))
-                del history[:-self.settings.temp_history]
+            self.temperatures.update({h: (v["current"], v["target"]) for h, v in mirror["temps"].items()},
+                                     event.time)
         job = self.job
         if job is not None and mirror["job"] is not None and mirror["job"]["id"] == job.id:
             job._update(mirror["job"])
-        if self.on_event is not None:
-            try:
-                self.on_event(event)
-            except Exception:
-                import traceback
-                traceback.print_exc()
-        for events in self._subscribers:
-            try:
-                events.put_nowait(event)
-            except Exception:
-                pass
+        self._publish(event)

@@ -1,0 +1,57 @@
+"""Events and the parts of the interface shared by ``Printer`` and ``PrinterProcess``."""
+
+import queue
+import time
+import traceback
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Event:
+    """Something the daemon may want to know: ``kind`` plus data (see hostd.printer.link)."""
+
+    kind: str
+    data: dict = field(default_factory=dict)
+    time: float = field(default_factory=time.time)
+
+
+class Publisher:
+    """Event delivery (callback + subscriber queues) and job waiting.
+
+    Subclasses set ``on_event``, ``_subscribers`` (a list) and ``job``.
+    """
+
+    def subscribe(self, maxsize=10000):
+        """A queue receiving every Event from now on (oldest dropped when full)."""
+        events = queue.Queue(maxsize)
+        self._subscribers.append(events)
+        return events
+
+    def wait(self, timeout_s=None):
+        """Wait for the current job to finish; returns its snapshot (None on timeout)."""
+        job = self.job
+        if job is None:
+            return None
+        return job.snapshot() if job.wait(timeout_s) else None
+
+    def progress(self):
+        """Job progress: confirmed/total lines and bytes (empty dict without a job)."""
+        job = self.job
+        return job.snapshot() if job else {}
+
+    def _publish(self, event):
+        if self.on_event is not None:
+            try:
+                self.on_event(event)
+            except Exception:
+                # The listener's bug must not stop the print: report it and carry on.
+                traceback.print_exc()
+        for events in self._subscribers:
+            try:
+                events.put_nowait(event)
+            except queue.Full:
+                try:
+                    events.get_nowait()
+                    events.put_nowait(event)
+                except (queue.Empty, queue.Full):
+                    pass
