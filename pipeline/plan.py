@@ -145,8 +145,11 @@ def plan_file(path, profile, progress=None):
             "fix": "see NAME.stress.png for where; lower the height or simplify"})
 
     t = stage("simulate", "forward simulation of the flat sheet")
+    # The printed sheet can only shrink within the material's range (the G-code clamps
+    # the thickness the same way), so the simulation shrinks by the clamped sigma.
     sim = simulate(mesh, flat, weights={k: weights[k] for k in
-                                        ("bridge", "printing", "bending", "shear")})
+                                        ("bridge", "printing", "bending", "shear")},
+                   s_min=lim.s_min, s_max=lim.s_max)
     result.sim = sim
     timing["simulate"] = time.perf_counter() - t
 
