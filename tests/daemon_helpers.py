@@ -37,7 +37,9 @@ def write_config(folder, node_id="n1", printers=None, share=None, **extra):
                 lease_s=30.0, stop_timeout_s=10.0,
                 printers=printers or [{"name": "p1", "profile": "generic-0.5mm",
                                        "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0",
-                                       "baud": 2000000}])
+                                       "baud": 2000000}],
+                # Any free port: several test daemons run at once.
+                web={"host": "127.0.0.1", "port": 0, "token": None})
     data.update(extra)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "hostd.yaml"
