@@ -167,3 +167,30 @@ def test_fold_area_fraction_measures_flipped_area():
     f = fold_area_fraction(folded, faces)
     assert 0.0 < f < 1.0
     assert f == pytest.approx(1.0 / (0.5 + 1.0))   # flipped area 1.0, total 1.5
+
+
+@pytest.mark.slow
+def test_colour_input_gets_a_screen_print_texture_and_outline(tmp_path):
+    from PIL import Image
+    hf = shapes.dome(diameter_mm=40.0, height_mm=8.0)
+    np.save(tmp_path / "c.npy", hf.z.astype(np.float32))
+    (tmp_path / "c.yaml").write_text("pixel_mm: 0.5\n")
+    r_, c_ = np.indices(hf.z.shape)
+    rgb = np.stack([c_ * 255 // c_.max(), r_ * 255 // r_.max(), np.full_like(r_, 128)], -1)
+    Image.fromarray(rgb.astype(np.uint8)).save(tmp_path / "c.color.png")
+    r = hostd("plan", tmp_path / "c.npy", "-o", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "out" / "c.report.json").read_text())
+    assert report["heightfield"]["has_color"] and report["texture"]["dpi"] == 300
+    with Image.open(tmp_path / "out" / "c.texture.png") as im:
+        assert round(im.info["dpi"][0]) == 300 and im.mode == "RGBA"
+        px = np.asarray(im).astype(int)
+    # Red grows to the east (image right), green to the south (image bottom); the
+    # black registration marks are left out.
+    inside = (px[..., 3] > 0) & (px[..., :3].sum(axis=-1) > 60)
+    cols = np.nonzero(inside.any(axis=0))[0]
+    rows = np.nonzero(inside.any(axis=1))[0]
+    mid_r, mid_c = (rows[0] + rows[-1]) // 2, (cols[0] + cols[-1]) // 2
+    assert px[mid_r, cols[-1] - 5, 0] > px[mid_r, cols[0] + 5, 0] + 100
+    assert px[rows[-1] - 5, mid_c, 1] > px[rows[0] + 5, mid_c, 1] + 100
+    assert "<svg" in (tmp_path / "out" / "c.outline.svg").read_text()
