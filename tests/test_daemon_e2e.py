@@ -244,3 +244,24 @@ def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pt
     k = next(i for i, (a, b) in enumerate(zip(done, gcode)) if a != b)
     assert done[k:k + len(park) + len(unpark)] == park + unpark
     assert done[:k] + done[k + len(park) + len(unpark):] == gcode
+
+
+@pytest.mark.slow
+def test_sidecar_copies_print_the_plan_that_many_times(tmp_path, dome, pty_sim):
+    sim, port = pty_sim
+    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+                                            "port": port, "baud": 250000}])
+    src = tmp_path / "in" / "two.npy"
+    src.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(dome, src)
+    side = dome.with_name(dome.stem + ".yaml").read_text()
+    src.with_name("two.yaml").write_text(side + "copies: 2\n")
+    with daemon(cfg) as d:
+        drop(src, tmp_path / "share" / "drop", "two.npy")
+        wait_for(lambda: states(cfg).get("two.npy") == "done", timeout=120, proc=d,
+                 what="two copies printed")
+        assert d.stop() == 0
+    job = jobs(cfg)[0]
+    assert job["copies"] == 2 and job["copies_done"] == 2
+    gcode = gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
+    assert job_commands(sim) == gcode + gcode
