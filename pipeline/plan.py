@@ -215,7 +215,9 @@ def _report(path, profile, p, vrep, srep, timing):
         "simulation": {"mean_displacement_mm": float(sim.mean_displacement_mm),
                        "max_displacement_mm": float(sim.max_displacement_mm),
                        "mean_displacement_fraction": float(
-                           sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9))},
+                           sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
+                       "iterations": int(sim.iterations), "converged": bool(sim.converged),
+                       "mirrored": bool(sim.mirrored)},
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         "printable": p.printable,
