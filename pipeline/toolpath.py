@@ -264,11 +264,12 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
         chains.append((p, sg, closed))
     children = _nesting(chains, levels)
     import shapely
-    footprint = _outline_polygon(xy, faces).buffer(0.25 * pw)
+    outline = _outline_polygon(xy, faces)
+    footprint = outline.buffer(0.25 * pw)
     shapely.prepare(footprint)
     traces, tsig = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
                                  merge_sigma, footprint)
-    info = _metrics(traces, tsig, raw, xy, faces, pw)
+    info = _metrics(traces, tsig, raw, xy, outline, pw)
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
 
 
@@ -419,7 +420,7 @@ def _outline_polygon(xy, faces):
     return poly if poly.is_valid else shapely.make_valid(poly)
 
 
-def _metrics(traces, tsig, raw, xy, faces, pw):
+def _metrics(traces, tsig, raw, xy, poly, pw):
     import shapely
 
     seg_count = sum(len(s) for s in tsig)
@@ -447,8 +448,7 @@ def _metrics(traces, tsig, raw, xy, faces, pw):
     other = (label[i] != label[probe][:, None]) & np.isfinite(d)
     has = other.any(axis=1)
     spacing = d[has, np.argmax(other[has], axis=1)]
-    # Coverage and overlap on a grid over the flat footprint.
-    poly = _outline_polygon(xy, faces)
+    # Coverage and overlap on a grid over the flat footprint (``poly``, its outline).
     res = pw / 2.5
     x0, y0 = xy.min(axis=0)
     x1, y1 = xy.max(axis=0)
