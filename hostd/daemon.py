@@ -365,9 +365,12 @@ class Daemon(ControlMixin):
                 self.cache.store(proc.outdir, job["plan_key"], Path(job["input_path"]).stem)
                 self._ready(job, "planned in %.1f s" % (time.monotonic() - proc.started))
             else:
+                # Whatever the plan wrote (an error file, or the pictures of a plan
+                # that is not printable) goes to the job's outbox for a person.
                 outbox = self._outbox(job)
-                for f in Path(proc.outdir).glob("*.error.json"):
-                    shutil.copy2(f, outbox / f.name)
+                for f in Path(proc.outdir).iterdir():
+                    if f.is_file() and f.name != "result.json":
+                        shutil.copy2(f, outbox / f.name)
                 shutil.rmtree(proc.outdir, ignore_errors=True)
                 text = result.get("text") or result.get("message") or "planning failed"
                 if result.get("fix") and "Fix:" not in text:

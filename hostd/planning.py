@@ -90,6 +90,17 @@ def _limit(memory_mb, cpu_s):
         resource.setrlimit(resource.RLIMIT_CPU, (int(cpu_s), int(cpu_s) + 2))
 
 
+def plan_result(plan):
+    """The job's verdict on a finished plan: a plan marked not printable (its flat
+    layout folds) fails its job with the reasons; its outputs stay for a person."""
+    if plan.printable:
+        return {"ok": True}
+    worst = next(p for p in plan.problems if p["code"] == "flatten.overlap")
+    text = "; ".join(p["message"] for p in plan.problems)
+    return {"ok": False, "code": worst["code"], "text": "planned but not printable: " + text,
+            "fix": worst["fix"] + " (the outbox has the pictures that show where)"}
+
+
 def child_main(argv):
     args = json.loads(argv[0])
     _limit(args.get("memory_mb"), args.get("cpu_s"))
@@ -104,8 +115,7 @@ def child_main(argv):
         from hostd import planner
         from pipeline.profile import load_profile
         profile = load_profile(args["profile"])
-        planner.run(args["input"], profile, outdir)
-        result = {"ok": True}
+        result = plan_result(planner.run(args["input"], profile, outdir))
     except PipelineError as exc:
         result = dict(exc.to_dict(), ok=False)
     except MemoryError:

@@ -75,3 +75,19 @@ def test_plan_memory_limit_fails_the_plan(tmp_path):
     proc.proc.wait(120)
     result = proc.poll()
     assert not result["ok"] and result["code"] in ("plan.memory_limit", "plan.crashed")
+
+
+def test_a_plan_marked_not_printable_fails_its_job_with_the_reasons():
+    from hostd.planning import plan_result
+    from pipeline.plan import Plan
+    plan = Plan(name="x", profile=None)
+    assert plan_result(plan) == {"ok": True}
+    plan.problems.append({"code": "flatten.invalid_edges", "message": "12 % invalid",
+                          "fix": "simplify"})
+    assert plan_result(plan) == {"ok": True}        # a warning alone still prints
+    plan.problems.append({"code": "flatten.overlap", "message": "the layout folds",
+                          "fix": "raise min_prominence_mm"})
+    r = plan_result(plan)
+    assert r["ok"] is False and r["code"] == "flatten.overlap"
+    assert "the layout folds" in r["text"] and "12 % invalid" in r["text"]
+    assert "min_prominence_mm" in r["fix"]
