@@ -131,6 +131,25 @@ def test_hinge_rows_vanish_on_flat_rest_state_and_on_translations():
     assert np.abs(np.einsum("hk,hkd->hd", Kc, mesh.vertices[top.hinges])).max() > 1e-3
 
 
+def test_hinges_beside_a_degenerate_triangle_get_no_bending_row():
+    """A strip of hinges: the two beside the needle (a 0.3 degree corner) have
+    zero rows, the others keep their cotangent rows."""
+    # four triangles along a strip; the middle one is a needle
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2], [60, 0.5, 0.0],
+                    [1, 2, 0.1]], float)
+    faces = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 3], [2, 3, 5]])
+    top = topology(faces)
+    L = edge_lengths(pts, top.edges)
+    _, _, angle = face_geometry(top, L)
+    needle = np.degrees(angle.min(axis=1)) < 1.0
+    assert needle.tolist() == [False, False, True, False]
+    K = hinge_weights(top, L)
+    beside = needle[top.hinge_faces].any(axis=1)
+    assert beside.any() and (~beside).any()
+    assert np.all(K[beside] == 0.0)
+    assert np.all(np.abs(K[~beside]).sum(axis=1) > 0.1)
+
+
 def test_face_geometry_angles_sum_to_pi():
     mesh = reference_mesh("dome")
     top = topology(mesh.faces)
