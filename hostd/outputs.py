@@ -62,7 +62,9 @@ class Staging:
 
     def write_image(self, name, image):
         buf = io.BytesIO()
-        image.save(buf, format="PNG", optimize=False)
+        # zlib level 1: half the encode time of the default 6 for ~20 % larger
+        # files (the stress picture of a 175 mm part: 0.32 s -> 0.14 s, 1.2 -> 1.5 MB).
+        image.save(buf, format="PNG", optimize=False, compress_level=1)
         self.write(name, buf.getvalue())
 
     def publish(self):
