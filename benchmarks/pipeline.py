@@ -103,7 +103,8 @@ def bench_flatten():
     return {str(n): _child(FLATTEN, str(n)) for n in (5000, 20000, 80000, 200000)}
 
 
-def bench_plan(names=("starfish", "dome", "saddle", "three_islands")):
+def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_peak",
+                      "terrain_tile")):
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
