@@ -97,8 +97,10 @@ def path_field(xy, faces, level, path_width_mm):
     return u - u[pin]
 
 
-def level_segments(xy, faces, u, values, eps=1e-9):
+def level_segments(xy, faces, u, values, eps=1e-9, edges=None):
     """Marching triangles: segments of the level sets ``u = values``.
+
+    ``edges`` : (e, 2) int, the mesh's :func:`unique_edges`, if already at hand.
 
     Returns
     -------
@@ -133,7 +135,7 @@ def level_segments(xy, faces, u, values, eps=1e-9):
         t = sa / (sa - sb)
         ends.append((a, b, t))
     pts = np.stack([xy[a] + (xy[b] - xy[a]) * t[:, None] for a, b, t in ends], axis=1)
-    edges = unique_edges(faces)
+    edges = unique_edges(faces) if edges is None else edges
     nv = len(xy)
     ekey = edges[:, 0] * nv + edges[:, 1]
     keys = []
@@ -150,8 +152,13 @@ def chain_segments(pts, keys):
     Returns a list of ``(order (k,) int segment ids, closed bool)``.
     """
     s = len(pts)
-    start_of = {int(k): i for i, k in enumerate(keys[:, 0])}
-    nxt = np.array([start_of.get(int(k), -1) for k in keys[:, 1]], dtype=np.int64)
+    # Successor of each segment: the one starting where it ends (the last such
+    # segment when several do, as a dict would keep), by a sorted lookup.
+    order = np.argsort(keys[:, 0], kind="stable")
+    sk = keys[order, 0]
+    pos = np.searchsorted(sk, keys[:, 1], side="right") - 1
+    found = (pos >= 0) & (sk[np.maximum(pos, 0)] == keys[:, 1])
+    nxt = np.where(found, order[np.maximum(pos, 0)], -1).astype(np.int64)
     has_prev = np.zeros(s, bool)
     has_prev[nxt[nxt >= 0]] = True
     seen = np.zeros(s, bool)
@@ -244,8 +251,8 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
     pw = float(path_width_mm)
     u = path_field(xy, faces, level, pw)
     values = np.arange(np.floor(u.min()) + 0.5, u.max(), 1.0)
-    pts, keys, edge_t, seg_level = level_segments(xy, faces, u, values)
     edges = unique_edges(faces)
+    pts, keys, edge_t, seg_level = level_segments(xy, faces, u, values, edges=edges)
     sv = vertex_sigma(len(xy), printing_edges, sigma, edges)
     a = edge_t[..., 0].astype(np.int64)
     b = edge_t[..., 1].astype(np.int64)
