@@ -463,8 +463,9 @@ def _metrics(traces, tsig, raw, xy, poly, pw):
     inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
     grid = np.column_stack([X.ravel()[inside], Y.ravel()[inside]])
     # Only neighbours within half a path width decide coverage and overlap, and
-    # the tighter bound prunes most of the tree walk.
-    d, i = tree.query(grid, k=6, distance_upper_bound=pw / 2)
+    # the tighter bound prunes most of the tree walk (nextafter: a point exactly
+    # half a width away still counts, as the tests below use <=).
+    d, i = tree.query(grid, k=6, distance_upper_bound=np.nextafter(pw / 2, np.inf))
     covered = d[:, 0] <= pw / 2
     first = label[np.minimum(i[:, 0], len(label) - 1)]
     lab = label[np.minimum(i, len(label) - 1)]
