@@ -20,7 +20,9 @@ STATES = (QUEUED, PLANNING, READY, PRINTING, DONE, FAILED, CANCELLED, INTERRUPTE
 ACTIVE = (QUEUED, PLANNING, READY, PRINTING)
 FINISHED = (DONE, FAILED, CANCELLED, INTERRUPTED)
 
+# One transaction, so a reader sees all of the tables or none of them.
 _SCHEMA = """
+BEGIN IMMEDIATE;
 CREATE TABLE IF NOT EXISTS jobs (
     id TEXT PRIMARY KEY,
     name TEXT NOT NULL,            -- input file name as dropped
@@ -73,11 +75,36 @@ CREATE TABLE IF NOT EXISTS printers (
     job_id TEXT,
     updated_at REAL
 );
+COMMIT;
 """
 
 _FIELDS = ("name", "rel_path", "input_path", "sidecar_path", "input_hash", "target", "profile",
            "printer", "priority", "copies", "copies_done", "state", "progress", "last_line",
            "error", "error_code", "plan_key", "outbox", "node_id", "started_at", "finished_at")
+
+
+_BUSY_TIMEOUT_S = 30.0
+
+
+def _retry_locked(call, timeout_s=_BUSY_TIMEOUT_S):
+    """Run ``call()``, retrying while SQLite reports the file locked.
+
+    SQLite's busy handler waits for ordinary locks, but where two connections
+    would deadlock (both holding a read lock, both wanting to write, as when
+    two processes switch the journal mode at once) it returns "database is
+    locked" at once; backing off and trying again is the documented cure.
+    """
+    deadline = time.monotonic() + timeout_s
+    delay = 0.01
+    while True:
+        try:
+            return call()
+        except sqlite3.OperationalError as exc:
+            text = str(exc).lower()
+            if ("locked" not in text and "busy" not in text) or time.monotonic() > deadline:
+                raise
+            time.sleep(delay)
+            delay = min(2 * delay, 0.5)
 
 
 def new_job_id():
@@ -97,11 +124,30 @@ class JobStore:
             raise HostdError("no job database here", code="jobs.missing", file=self.path,
                              fix="start the daemon once with `hostd run` (same --config)")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.db = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+        self.db = sqlite3.connect(str(self.path), timeout=_BUSY_TIMEOUT_S, isolation_level=None)
         self.db.row_factory = sqlite3.Row
-        self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=NORMAL")
-        self.db.executescript(_SCHEMA)
+        if create:
+            # WAL is a property of the file: set once by its owner, every later
+            # connection (CLI, web) uses it without asking.
+            _retry_locked(lambda: self.db.execute("PRAGMA journal_mode=WAL"))
+            _retry_locked(self._create_tables)
+        elif not self.db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' "
+                                 "AND name = 'jobs'").fetchone():
+            # Readers never create or convert: a reader doing so while the daemon
+            # did the same deadlocked them, and the daemon failed to start.
+            self.db.close()
+            raise HostdError("the job database is not set up yet", code="jobs.missing",
+                             file=self.path, fix="start the daemon once with `hostd run` "
+                             "(same --config) and wait until it is up")
+
+    def _create_tables(self):
+        try:
+            self.db.executescript(_SCHEMA)
+        except sqlite3.OperationalError:
+            if self.db.in_transaction:
+                self.db.rollback()
+            raise
 
     def close(self):
         self.db.close()

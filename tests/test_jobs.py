@@ -78,6 +78,43 @@ def test_missing_database_is_a_clear_error(tmp_path):
     assert "hostd run" in err.value.text()
 
 
+def test_a_reader_never_sets_up_the_store(tmp_path):
+    # The daemon creates the file and its tables; a CLI reader arriving first must
+    # neither create tables nor switch the journal mode (the two processes doing
+    # both at once deadlocked, and the daemon exited at start).
+    path = tmp_path / "jobs.sqlite"
+    db = sqlite3.connect(str(path))
+    db.execute("CREATE TABLE unrelated (x)")
+    db.commit()
+    with pytest.raises(HostdError) as err:
+        J.JobStore(path, create=False)
+    assert err.value.code == "jobs.missing"
+    tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    assert tables == {"unrelated"}
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "delete"
+    db.close()
+    J.JobStore(path).close()
+    reader = J.JobStore(path, create=False)
+    assert reader.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    reader.close()
+
+
+def test_setup_retries_while_the_file_is_locked(monkeypatch):
+    calls = []
+
+    def flaky():
+        calls.append(1)
+        if len(calls) < 3:
+            raise sqlite3.OperationalError("database is locked")
+        return "ok"
+
+    monkeypatch.setattr(J.time, "sleep", lambda s: None)
+    assert J._retry_locked(flaky) == "ok"
+    assert len(calls) == 3
+    with pytest.raises(sqlite3.OperationalError):
+        J._retry_locked(lambda: (_ for _ in ()).throw(sqlite3.OperationalError("no such table")))
+
+
 def test_unknown_fields_and_states_are_refused(store):
     jid = store.add("a", "a", "a")
     with pytest.raises(ValueError):
