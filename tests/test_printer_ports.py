@@ -82,3 +82,26 @@ def test_start_line_continues_an_interrupted_job_and_close_ends_the_job():
         assert job.last_confirmed_line == 300
         slow = printer.start(["G1 X10 F60", "G1 X0 F60"])
     assert slow.wait(5) and slow.result == "interrupted"   # close() ends it, never hangs
+
+
+class _ClosedUnderRead:
+    """A port whose read fails the way pyserial's socket:// handler does once closed."""
+
+    in_waiting = 0
+
+    def read(self, n):
+        raise ValueError("file descriptor cannot be a negative integer (-1)")
+
+
+def test_reader_reports_a_port_closed_under_its_read():
+    import queue
+
+    from hostd.printer.transport import Reader
+
+    inbox = queue.Queue()
+    reader = Reader(_ClosedUnderRead(), inbox, generation=7)
+    reader.start()
+    reader.join(5)
+    assert not reader.is_alive()
+    kind, generation, reason = inbox.get_nowait()
+    assert (kind, generation) == ("lost", 7) and "port lost" in reason

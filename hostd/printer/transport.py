@@ -65,7 +65,10 @@ class Reader(threading.Thread):
             try:
                 waiting = port.in_waiting
                 data = port.read(waiting or 1)
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            # pyserial's own errors, and what its handlers raise on a port closed
+            # under the read: TypeError/AttributeError (posix), ValueError (a
+            # socket:// port whose descriptor is already -1).
+            except (serial.SerialException, OSError, TypeError, AttributeError, ValueError) as exc:
                 if not self.stopping:
                     self.inbox.put(("lost", self.generation, "port lost: %s" % exc))
                 return
