@@ -7,6 +7,10 @@ nothing here asserts them.
 
     python benchmarks/pipeline.py                 # everything
     python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain
+
+The plan group runs each model twice: with the profile as shipped (the
+forward simulation on the full mesh) and with ``mesh.l_sim_mm: 2`` (on the
+coarse sheet), under ``<model>@sheet_2mm``.
 """
 
 import argparse
@@ -60,13 +64,15 @@ print(json.dumps({"triangles": len(mesh.faces), "l_u_mm": round(lu, 3), "iterati
 """
 
 PLAN = r"""
-import io, shutil
+import dataclasses, io, shutil
 from pathlib import Path
 import numpy as np
 from pipeline.profile import load_profile
 from hostd import planner
 path, outdir = sys.argv[1], sys.argv[2]
 prof = load_profile("generic-0.5mm")
+if len(sys.argv) > 3:
+    prof = dataclasses.replace(prof, mesh=dataclasses.replace(prof.mesh, l_sim_mm=float(sys.argv[3])))
 t = time.perf_counter()
 plan = planner.run(path, prof, outdir)
 wall = time.perf_counter() - t
@@ -81,6 +87,8 @@ print(json.dumps({
     "invalid_edge_fraction": round(r["flatten"]["invalid_edge_fraction"], 4),
     "mean_displacement_mm": round(r["simulation"]["mean_displacement_mm"], 3),
     "mean_displacement_pct_of_diameter": round(100 * r["simulation"]["mean_displacement_fraction"], 3),
+    "simulation_converged": r["simulation"]["converged"],
+    "simulated_vertices": r["simulation"]["sheet_vertices"],
     "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
     "coverage": round(r["toolpath"]["coverage"], 4),
     "gcode_lines": g["lines"], "gcode_bytes": g["bytes"], "moves_per_s": g["moves_per_s"],
@@ -110,6 +118,8 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
         for name in names:
             _child(SHAPE, name, tmp)
             out[name] = _child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out")
+            out[name + "@sheet_2mm"] = _child(PLAN, str(Path(tmp) / (name + ".npy")),
+                                              tmp + "/out", "2.0")
     return out
 
 

@@ -33,6 +33,8 @@ class Mesh:
         True for closed loops, False for open arcs ending on the boundary.
     info : dict
         Counts for the report (``isolines``, ``saddles``, ``peaks``, ...).
+    sheet : SimSheet or None
+        A coarser triangulation of the same sheet for the forward simulation.
     """
 
     vertices: np.ndarray
@@ -44,6 +46,34 @@ class Mesh:
     isoline_level: np.ndarray = field(default_factory=lambda: np.zeros(0))
     isoline_closed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     info: dict = field(default_factory=dict)
+    sheet: "SimSheet" = None
+
+
+@dataclass
+class SimSheet:
+    """The sheet at a coarser resolution: same cells, fewer isoline vertices.
+
+    The printing edges are upsampled to ``l_u`` for the tool paths; the sheet's
+    mechanics do not need that resolution, and the forward simulation's cost
+    grows with it. Every dropped vertex lies on an isoline (or outline) arc
+    between two kept ones, so the coarse result gives it a position.
+
+    Attributes
+    ----------
+    faces : (mc, 3) int
+        Triangles over a subset of the mesh's vertices, counter-clockwise.
+    dropped : (k,) int
+        Mesh vertices that are in no coarse face.
+    between : (k, 2) int
+        The kept vertices on either side of each dropped one, along its arc.
+    t : (k,) float
+        Position of each dropped vertex between them (0-1, by arc length).
+    """
+
+    faces: np.ndarray
+    dropped: np.ndarray
+    between: np.ndarray
+    t: np.ndarray
 
 
 def unique_edges(faces):

@@ -14,20 +14,23 @@
    shortest diagonal after upsampling isoline edges to ``l_u``; peak and saddle
    polygons are fanned around an inserted centre vertex
    (``pipeline.triangulate``).
+4. Optionally the same cells again with fewer isoline vertices: the coarser
+   sheet the forward simulation can run on (``Mesh.sheet``).
 """
 
 import numpy as np
 import shapely
 
 from pipeline.errors import MeshingError
-from pipeline.geometry import Mesh, polygon_area, signed_areas_2d, unique_edges
+from pipeline.geometry import Mesh, SimSheet, polygon_area, signed_areas_2d, unique_edges
 from pipeline.gradient import Snapper, trace
 from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces, points_at
-from pipeline.triangulate import ear_clip, fan, zip_strips
+from pipeline.triangulate import (ear_clip, fan, main_runs, run_level, sim_sheet, split_ring,
+                                  trace_faces, zip_strips)
 
 
 def build_mesh(hf, isoline_step_mm=1.0, gradient_spacing_mm=2.0, l_u_mm=0.25,
-               flat_slope=0.05):
+               flat_slope=0.05, l_sim_mm=0.0):
     """Mesh a validated height field.
 
     Parameters
@@ -37,20 +40,23 @@ def build_mesh(hf, isoline_step_mm=1.0, gradient_spacing_mm=2.0, l_u_mm=0.25,
     gradient_spacing_mm : float, spacing of gradient lines along an isoline
     l_u_mm : float, longest printing edge (the paper's l_u)
     flat_slope : float, ramp of the guide field in flat areas (see isolines)
+    l_sim_mm : float, longest isoline edge of the coarser sheet the forward
+        simulation runs on (``Mesh.sheet``); 0 gives no coarse sheet
 
     Returns
     -------
     Mesh
     """
     field = GuideField(hf, flat_slope=flat_slope)
-    graph = _Graph(field, isoline_step_mm, gradient_spacing_mm, l_u_mm)
+    graph = _Graph(field, isoline_step_mm, gradient_spacing_mm, l_u_mm, l_sim_mm)
     graph.trace_bands()
     return graph.triangulate()
 
 
 class _Graph:
-    def __init__(self, field, dh, d_g, l_u):
+    def __init__(self, field, dh, d_g, l_u, l_sim=0.0):
         self.field, self.dh, self.d_g, self.l_u = field, dh, d_g, l_u
+        self.l_sim = float(l_sim)
         outline_pts, self.polygon = footprint_outline(field, min(l_u, field.pixel_mm))
         g_out = field.value(outline_pts)
         g_in = field.g[field.inside]
@@ -159,7 +165,7 @@ class _Graph:
         if not self.level_outline:
             self._trace_from_sloped_outline(snappers, tol)
         for li in range(len(self.levels) - 1):
-            src, t_src, tgt = [], [], []
+            src, t_src = [], []
             for pid in by_level[li]:
                 for t in self._seeds(pid):
                     src.append(pid)
@@ -282,6 +288,7 @@ class _Graph:
         level = [np.nan] * len(verts)
         he = []            # (from node, to node, piece, vertex list) per half-edge
         printing = []      # (a, b, isoline id)
+        self.arcs = []     # (vertex chain from node to node, length mm) along pieces
         iso_id = {}
         for pid, pc in enumerate(self.pieces):
             if not self.piece_t[pid]:
@@ -303,6 +310,7 @@ class _Graph:
                 verts.extend(inner)
                 level.extend([pc.level] * len(inner))
                 chain = [na] + ids + [nb]
+                self.arcs.append((np.asarray(chain), tb - ta))
                 if is_print:
                     level[na] = level[nb] = pc.level
                     printing.extend((a, b, iso_id[pid]) for a, b in zip(chain[:-1], chain[1:]))
@@ -312,7 +320,7 @@ class _Graph:
             he.append((a, b, -1, [a]))
             he.append((b, a, -1, [b]))
         xy = np.asarray(verts, float)
-        faces_he = _trace_faces(xy, he)
+        faces_he = trace_faces(xy, he)
         return self._assemble(xy, np.asarray(level, float), he, faces_he, printing, iso_id)
 
     def _assemble(self, xy, level, he, faces_he, printing, iso_id):
@@ -321,22 +329,23 @@ class _Graph:
         points3 = np.column_stack([xy, z])
         lowers, uppers, zip_rings, extra_tris = [], [], [], []
         centres = []
+        fans = []   # (ring, centre id) of fanned cells; ear-clipped cells have no centre
         peaks = saddles = 0
         for cycle in faces_he:
             ring = np.concatenate([he[h][3] for h in cycle]).astype(np.int64)
             if polygon_area(xy[ring]) <= 0:
                 continue  # the outer face
-            runs = _main_runs(cycle, he, self.pieces)
-            if len(runs) == 2 and _run_level(runs[0], cycle, he, self.pieces) != \
-                    _run_level(runs[1], cycle, he, self.pieces):
-                lo, up = sorted(runs, key=lambda r: _run_level(r, cycle, he, self.pieces))
-                lower, upper = _split_ring(cycle, he, up)
+            runs = main_runs(cycle, he, self.pieces)
+            if len(runs) == 2 and run_level(runs[0], cycle, he, self.pieces) != \
+                    run_level(runs[1], cycle, he, self.pieces):
+                lo, up = sorted(runs, key=lambda r: run_level(r, cycle, he, self.pieces))
+                lower, upper = split_ring(cycle, he, up)
                 lowers.append(lower)
                 uppers.append(upper)
                 zip_rings.append(ring)
                 continue
             if len(runs) == 1 and len(runs[0]) < len(cycle):
-                lower, upper = _split_ring(cycle, he, runs[0], swap=True)
+                lower, upper = split_ring(cycle, he, runs[0], swap=True)
                 if len(upper) == 1:
                     lowers.append(lower)
                     uppers.append(upper)
@@ -353,8 +362,10 @@ class _Graph:
             tris = fan(xy, ring, cid, centre)
             if tris is None:
                 tris = ear_clip(xy, ring)
+                fans.append((ring, -1))
             else:
                 centres.append(centre)
+                fans.append((ring, cid))
             extra_tris.append(tris)
         if centres:
             c = np.asarray(centres)
@@ -372,10 +383,14 @@ class _Graph:
                       & (faces[:, 0] != faces[:, 2])]
         nan = np.isnan(level)
         level[nan] = field.value(xy[nan])
+        sheet = None
+        if self.l_sim > 0:
+            sheet = sim_sheet(points3, len(self.node_xy), len(xy) - len(centres), self.arcs,
+                              self.bridges, (lowers, uppers, zip_rings), fans, self.l_sim)
         return _make_mesh(points3, faces, printing, level, self, iso_id,
                           {"peaks": int(peaks), "saddles": int(saddles),
                            "connectors": int(self.connectors),
-                           "level_outline": self.level_outline})
+                           "level_outline": self.level_outline}, sheet)
 
 
 def _shrunk_many(a, b, eps_mm=1e-4):
@@ -392,84 +407,6 @@ def _shrunk(a, b, eps_mm=1e-4):
     n = max(float(np.hypot(d[0], d[1])), 1e-12)
     e = min(eps_mm / n, 0.25)
     return shapely.LineString([a + e * d, b - e * d])
-
-
-def _main_runs(cycle, he, pieces):
-    """Maximal runs of half-edges along one printing isoline, in cycle order."""
-    keys = [he[h][2] if he[h][2] >= 0 and not np.isnan(pieces[he[h][2]].level) else -1
-            for h in cycle]
-    n = len(keys)
-    if all(k == keys[0] for k in keys):
-        return [list(range(n))] if keys[0] >= 0 else []
-    start = next(i for i in range(n) if keys[i] != keys[i - 1])
-    runs, cur = [], []
-    for s in range(n):
-        i = (start + s) % n
-        if cur and keys[i] != keys[cur[-1]]:
-            if keys[cur[-1]] >= 0:
-                runs.append(cur)
-            cur = []
-        cur.append(i)
-    if cur and keys[cur[-1]] >= 0:
-        runs.append(cur)
-    return runs
-
-
-def _run_level(run, cycle, he, pieces):
-    return pieces[he[cycle[run[0]]][2]].level
-
-
-def _split_ring(cycle, he, run, swap=False):
-    """Split a cell's ring into the chain of ``run`` (U) and the rest (L).
-
-    Returns ``(L, U_reversed)`` as ``zip_strips`` wants them; with ``swap``
-    the run is L instead (for cells closed by a single apex vertex).
-    """
-    lens = [len(he[h][3]) for h in cycle]
-    offs = np.concatenate([[0], np.cumsum(lens)])
-    ring = np.concatenate([he[h][3] for h in cycle])
-    n = len(ring)
-    s = offs[run[0]]
-    e = (offs[run[-1] + 1]) % n  # the run's end vertex: first vertex of the next half-edge
-    idx = np.arange(n)
-    chain_u = ring[np.mod(np.arange(s, s + ((e - s) % n) + 1), n)]
-    rest = ring[np.mod(np.arange(e + 1, e + 1 + (n - ((e - s) % n) - 1)), n)]
-    del idx
-    if swap:
-        # The run is the lower chain; the rest (one apex) is the upper.
-        return chain_u, rest[::-1]
-    return rest, chain_u[::-1]
-
-
-def _trace_faces(xy, he):
-    """Faces of the planar graph: cycles of half-edges with the face on the left."""
-    n = len(he)
-    frm = np.array([h[0] for h in he])
-    to = np.array([h[1] for h in he])
-    second = np.array([h[3][1] if len(h[3]) > 1 else h[1] for h in he])
-    d = xy[second] - xy[frm]
-    ang = np.arctan2(d[:, 1], d[:, 0])
-    twin = np.arange(n) ^ 1
-    order = np.lexsort((ang, frm))
-    pos = np.empty(n, dtype=np.int64)
-    counts = np.bincount(frm, minlength=len(xy))
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pos[order] = np.arange(n) - start[frm[order]]
-    tw = twin
-    nxt = order[start[to] + np.mod(pos[tw] - 1, counts[to])]
-    seen = np.zeros(n, bool)
-    faces = []
-    for h0 in range(n):
-        if seen[h0]:
-            continue
-        cyc = []
-        h = h0
-        while not seen[h]:
-            seen[h] = True
-            cyc.append(h)
-            h = nxt[h]
-        faces.append(cyc)
-    return faces
 
 
 def _peak(field, ring_xy):
@@ -495,7 +432,7 @@ def _inner_point(ring_xy):
     return np.array([c.x, c.y])
 
 
-def _make_mesh(points3, faces, printing, level, graph, iso_id, info):
+def _make_mesh(points3, faces, printing, level, graph, iso_id, info, sheet=None):
     faces = np.asarray(faces, dtype=np.int64)
     used = np.zeros(len(points3), bool)
     used[faces.ravel()] = True
@@ -503,6 +440,10 @@ def _make_mesh(points3, faces, printing, level, graph, iso_id, info):
     faces = remap[faces]
     points3 = points3[used]
     level = level[used]
+    if sheet is not None:
+        ok = used[sheet.dropped]
+        sheet = SimSheet(faces=remap[sheet.faces], dropped=remap[sheet.dropped[ok]],
+                         between=remap[sheet.between[ok]], t=sheet.t[ok])
     flipped = signed_areas_2d(points3, faces) <= 0
     edges = unique_edges(faces)
     pr = np.asarray(printing, dtype=np.int64).reshape(-1, 3)
@@ -524,4 +465,4 @@ def _make_mesh(points3, faces, printing, level, graph, iso_id, info):
                 printing_isoline=printing_isoline,
                 isoline_level=np.array([graph.pieces[p].level for p in ids]),
                 isoline_closed=np.array([graph.pieces[p].closed for p in ids]),
-                info=info)
+                info=info, sheet=sheet)

@@ -107,7 +107,8 @@ def plan_file(path, profile, progress=None):
     t = stage("mesh", "isolines every %.3g mm, gradient lines every %.3g mm"
               % (mp.isoline_step_mm, mp.gradient_spacing_mm))
     mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
-                      gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
+                      gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm,
+                      l_sim_mm=mp.l_sim_mm)
     result.mesh = mesh
     timing["mesh"] = time.perf_counter() - t
 
@@ -217,7 +218,8 @@ def _report(path, profile, p, vrep, srep, timing):
                        "mean_displacement_fraction": float(
                            sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
                        "iterations": int(sim.iterations), "converged": bool(sim.converged),
-                       "mirrored": bool(sim.mirrored)},
+                       "mirrored": bool(sim.mirrored),
+                       "sheet_vertices": int(sim.sheet_vertices)},
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         "printable": p.printable,

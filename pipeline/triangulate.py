@@ -3,10 +3,16 @@
 Cells between two isolines are zipped greedily by the shortest diagonal;
 polygons at peaks and saddles are fanned around an inserted centre vertex,
 with ear clipping as the fallback where a fan would fold over itself.
+The same cells, with fewer isoline vertices, give the coarser sheet the
+forward simulation runs on (:func:`sim_sheet`).
 """
+
+from collections import Counter
 
 import mapbox_earcut
 import numpy as np
+
+from pipeline.geometry import SimSheet, signed_areas_2d
 
 
 def zip_strips(points, lowers, uppers):
@@ -104,3 +110,183 @@ def ear_clip(xy, ring):
         (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])
     tri[area < 0] = tri[area < 0][:, [0, 2, 1]]
     return tri
+
+
+# -- cells of the planar graph ---------------------------------------------
+def main_runs(cycle, he, pieces):
+    """Maximal runs of half-edges along one printing isoline, in cycle order."""
+    keys = [he[h][2] if he[h][2] >= 0 and not np.isnan(pieces[he[h][2]].level) else -1
+            for h in cycle]
+    n = len(keys)
+    if all(k == keys[0] for k in keys):
+        return [list(range(n))] if keys[0] >= 0 else []
+    start = next(i for i in range(n) if keys[i] != keys[i - 1])
+    runs, cur = [], []
+    for s in range(n):
+        i = (start + s) % n
+        if cur and keys[i] != keys[cur[-1]]:
+            if keys[cur[-1]] >= 0:
+                runs.append(cur)
+            cur = []
+        cur.append(i)
+    if cur and keys[cur[-1]] >= 0:
+        runs.append(cur)
+    return runs
+
+
+def run_level(run, cycle, he, pieces):
+    return pieces[he[cycle[run[0]]][2]].level
+
+
+def split_ring(cycle, he, run, swap=False):
+    """Split a cell's ring into the chain of ``run`` (U) and the rest (L).
+
+    Returns ``(L, U_reversed)`` as ``zip_strips`` wants them; with ``swap``
+    the run is L instead (for cells closed by a single apex vertex).
+    """
+    lens = [len(he[h][3]) for h in cycle]
+    offs = np.concatenate([[0], np.cumsum(lens)])
+    ring = np.concatenate([he[h][3] for h in cycle])
+    n = len(ring)
+    s = offs[run[0]]
+    e = (offs[run[-1] + 1]) % n  # the run's end vertex: first vertex of the next half-edge
+    idx = np.arange(n)
+    chain_u = ring[np.mod(np.arange(s, s + ((e - s) % n) + 1), n)]
+    rest = ring[np.mod(np.arange(e + 1, e + 1 + (n - ((e - s) % n) - 1)), n)]
+    del idx
+    if swap:
+        # The run is the lower chain; the rest (one apex) is the upper.
+        return chain_u, rest[::-1]
+    return rest, chain_u[::-1]
+
+
+def trace_faces(xy, he):
+    """Faces of the planar graph: cycles of half-edges with the face on the left."""
+    n = len(he)
+    frm = np.array([h[0] for h in he])
+    to = np.array([h[1] for h in he])
+    second = np.array([h[3][1] if len(h[3]) > 1 else h[1] for h in he])
+    d = xy[second] - xy[frm]
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    twin = np.arange(n) ^ 1
+    order = np.lexsort((ang, frm))
+    pos = np.empty(n, dtype=np.int64)
+    counts = np.bincount(frm, minlength=len(xy))
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pos[order] = np.arange(n) - start[frm[order]]
+    tw = twin
+    nxt = order[start[to] + np.mod(pos[tw] - 1, counts[to])]
+    seen = np.zeros(n, bool)
+    faces = []
+    for h0 in range(n):
+        if seen[h0]:
+            continue
+        cyc = []
+        h = h0
+        while not seen[h]:
+            seen[h] = True
+            cyc.append(h)
+            h = nxt[h]
+        faces.append(cyc)
+    return faces
+
+
+# -- the coarse sheet --------------------------------------------------------
+def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
+    """The cells triangulated again with arcs cut to pieces of at most ``l_mm``.
+
+    Parameters
+    ----------
+    points : (n, 3) float, mm
+        All vertices: graph nodes first (``n_nodes``), then the vertices
+        upsampled along arcs, then cell centres (from ``n_ring`` on).
+    arcs : list of ((k,) int vertex chain from node to node, length mm)
+    bridges : list of (node, node)
+    zips : (lowers, uppers, rings) of the zipped cells, as for :func:`zip_strips`
+    fans : list of (ring, centre id or -1 where the cell was ear-clipped)
+    l_mm : float
+
+    Returns
+    -------
+    SimSheet
+    """
+    keep = np.zeros(len(points), bool)
+    keep[:n_nodes] = True
+    keep[n_ring:] = True
+    pieces = [max(int(np.ceil(length / l_mm - 1e-9)), 1) for _, length in arcs]
+    # An arc cut to one edge must not join two vertices that another arc or a
+    # bridge already joins: the cell between them would have two sides.
+    ends = [tuple(sorted((int(c[0]), int(c[-1])))) for c, _ in arcs]
+    joined = Counter(e for e, k in zip(ends, pieces) if k == 1)
+    joined.update(tuple(sorted(b)) for b in bridges)
+    for i, e in enumerate(ends):
+        if e[0] == e[1]:
+            pieces[i] = max(pieces[i], 3)
+        elif pieces[i] == 1 and joined[e] > 1:
+            pieces[i] = 2
+    for (chain, _), k in zip(arcs, pieces):
+        m = len(chain) - 1
+        k = min(k, m)
+        keep[chain[np.rint(np.arange(1, k) * m / k).astype(np.int64)]] = True
+    for ring, cid in fans:
+        if cid < 0:
+            keep[ring] = True   # rare; the mesh's own ear clipping stands
+    # A coarse cell that folds gets its full ring back; a full cell is what the
+    # mesh has, so this ends.
+    while True:
+        faces, bad = _coarse_cells(points, keep, zips, fans)
+        if not bad:
+            break
+        keep[np.concatenate(bad)] = True
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+                  & (faces[:, 0] != faces[:, 2])]
+    dropped, between, t = [], [], []
+    for chain, _ in arcs:
+        gone = np.nonzero(~keep[chain])[0]
+        if len(gone):
+            kept = np.nonzero(keep[chain])[0]
+            i = np.searchsorted(kept, gone)
+            a, b = kept[i - 1], kept[i]
+            dropped.append(chain[gone])
+            between.append(np.stack([chain[a], chain[b]], axis=1))
+            t.append((gone - a) / (b - a))
+    if not dropped:
+        return SimSheet(faces, np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(0))
+    return SimSheet(faces, np.concatenate(dropped), np.concatenate(between), np.concatenate(t))
+
+
+def _coarse_cells(points, keep, zips, fans):
+    """Triangulate every cell over its kept vertices.
+
+    Returns (faces (m, 3) int, rings of the cells that folded).
+    """
+    lowers, uppers, rings = zips
+    full = np.array([bool(keep[r].all()) for r in rings], bool)
+    lo = [a[keep[a]] for a in lowers]
+    up = [a[keep[a]] for a in uppers]
+    zipped, strip = zip_strips(points, lo, up)
+    bad_strip = np.zeros(len(rings), bool)
+    bad_strip[strip[signed_areas_2d(points, zipped) <= 0]] = True
+    bad_strip |= np.array([len(a) + len(b) < 3 for a, b in zip(lo, up)], bool)
+    out = [zipped[~bad_strip[strip]]] if len(zipped) else []
+    bad = []
+    for k in np.nonzero(bad_strip)[0]:
+        if full[k]:
+            out.append(ear_clip(points[:, :2], rings[k]))   # as the mesh did
+        else:
+            bad.append(rings[k])
+    xy = points[:, :2]
+    for ring, cid in fans:
+        if cid < 0:
+            out.append(ear_clip(xy, ring))
+            continue
+        rc = ring[keep[ring]]
+        tris = fan(xy, rc, cid, xy[cid]) if len(rc) >= 3 else None
+        if tris is None and len(rc) == len(ring):
+            tris = ear_clip(xy, ring)
+        if tris is None:
+            bad.append(ring)
+        else:
+            out.append(tris)
+    faces = np.concatenate(out) if out else np.zeros((0, 3), np.int64)
+    return faces.astype(np.int64), bad

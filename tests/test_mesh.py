@@ -108,3 +108,28 @@ def test_zip_makes_counter_clockwise_strip_triangles():
     assert len(faces) == len(lower) + len(upper) - 2
     assert (signed_areas_2d(pts, faces) > 0).all()
     assert face_areas(pts, faces).sum() == pytest.approx(4.0)
+
+
+@pytest.mark.parametrize("name", SHAPES)
+def test_simulation_sheet_is_a_coarser_disk_over_the_same_cells(name):
+    m = reference_mesh(name, l_sim_mm=2.0)
+    assert reference_mesh(name).sheet is None    # only when asked for
+    sh = m.sheet
+    edges, count = boundary_loops(sh.faces)
+    assert count.max() <= 2, "non-manifold edges"
+    kept = np.unique(sh.faces)
+    assert len(kept) - len(edges) + len(sh.faces) == 1
+    assert (signed_areas_2d(m.vertices, sh.faces) > 0).all(), "folded triangles"
+    # Chords replace arcs: the area is the footprint's less slivers.
+    area = face_areas(m.vertices[:, :2], m.faces).sum()
+    assert face_areas(m.vertices[:, :2], sh.faces).sum() == pytest.approx(area, rel=0.005)
+    assert len(kept) < len(m.vertices) / 4
+    # Every other vertex follows two kept ones along its arc, close to their chord.
+    assert len(np.intersect1d(kept, sh.dropped)) == 0
+    assert len(kept) + len(sh.dropped) == len(m.vertices)
+    assert np.isin(sh.between, kept).all()
+    assert ((sh.t > 0) & (sh.t < 1)).all()
+    a, b = m.vertices[sh.between[:, 0]], m.vertices[sh.between[:, 1]]
+    assert np.linalg.norm(b - a, axis=1).max() <= 2.0 + 0.3
+    on_chord = (1 - sh.t)[:, None] * a + sh.t[:, None] * b
+    assert np.linalg.norm(on_chord - m.vertices[sh.dropped], axis=1).max() < 0.5

@@ -141,3 +141,24 @@ def test_planned_layouts_rise_within_one_percent(name):
     sim = simulate(mesh, flat, s_min=lim.s_min, s_max=lim.s_max)
     assert sim.mean_displacement_mm < 0.01 * longest_diameter(mesh), (
         sim.mean_displacement_mm, sim.iterations, sim.converged)
+
+
+@pytest.mark.parametrize("name,size", [
+    ("dome", {"diameter_mm": 80.0, "height_mm": 18.0}),
+    ("saddle", {"length_mm": 80.0, "width_mm": 60.0, "height_mm": 16.0})])
+def test_coarse_sheet_rises_like_the_full_mesh(name, size):
+    """The coarse sheet (isoline arcs cut to 2 mm, diagonals shrunk along the
+    isolines only) ends within 0.5 % of the diameter of where the full mesh
+    ends. Measured: dome 0.21 % against 0.34 %, saddle 1.43 % against 1.02 %;
+    with the coarse diagonals kept at their flat length the saddle is 2.14 %."""
+    from pipeline import shapes
+    from pipeline.mesh import build_mesh
+    mesh = build_mesh(shapes.REFERENCE[name](**size), l_sim_mm=2.0)
+    flat = flatten(mesh, s_min=0.0, s_max=0.343)
+    full = simulate(mesh, flat, s_min=0.0, s_max=0.343, coarse=False)
+    coarse = simulate(mesh, flat, s_min=0.0, s_max=0.343)
+    assert coarse.sheet_vertices < len(mesh.vertices) / 4 and full.sheet_vertices == len(mesh.vertices)
+    assert coarse.vertices.shape == mesh.vertices.shape
+    d = longest_diameter(mesh)
+    assert abs(coarse.mean_displacement_mm - full.mean_displacement_mm) < 0.005 * d, (
+        coarse.mean_displacement_mm / d, full.mean_displacement_mm / d)
