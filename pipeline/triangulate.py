@@ -232,8 +232,8 @@ def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
         if cid < 0:
             keep[ring] = True   # rare; the mesh's own ear clipping stands
     # A coarse cell that folds gets its full ring back; a full cell is what the
-    # mesh has, so this ends.
-    while True:
+    # mesh has and is never refused, so each round keeps more vertices and this ends.
+    for _ in range(len(zips[2]) + len(fans) + 1):
         faces, bad = _coarse_cells(points, keep, zips, fans)
         if not bad:
             break
@@ -267,7 +267,7 @@ def _coarse_cells(points, keep, zips, fans):
     zipped, strip = zip_strips(points, lo, up)
     bad_strip = np.zeros(len(rings), bool)
     bad_strip[strip[signed_areas_2d(points, zipped) <= 0]] = True
-    bad_strip |= np.array([len(a) + len(b) < 3 for a, b in zip(lo, up)], bool)
+    bad_strip |= np.array([len(a) + len(b) < 3 for a, b in zip(lo, up)], bool) & ~full
     out = [zipped[~bad_strip[strip]]] if len(zipped) else []
     bad = []
     for k in np.nonzero(bad_strip)[0]:
