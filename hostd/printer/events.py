@@ -16,10 +16,33 @@ class Event:
 
 
 class Publisher:
-    """Event delivery (callback + subscriber queues) and job waiting.
+    """Event delivery (callback + subscriber queues), job waiting and the job controls.
 
-    Subclasses set ``on_event``, ``_subscribers`` (a list) and ``job``.
+    Subclasses set ``on_event``, ``_subscribers`` (a list) and ``job``, and implement
+    ``_call(name, *args)``: run request ``name`` where the link lives and return its result.
     """
+
+    def pause(self):
+        """Stop feeding the job, then run the pause (park) script; heaters stay on."""
+        return self._call("pause")
+
+    def resume(self):
+        """Run the resume (unpark) script, then continue with the exact next job line."""
+        return self._call("resume")
+
+    def cancel(self):
+        """Stop feeding the job, then run the cancel script (heaters off, lift, motors off)."""
+        return self._call("cancel")
+
+    def send(self, command):
+        """Queue one out-of-band command (console); it goes before further job lines."""
+        return self._call("send", command)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
     def subscribe(self, maxsize=10000):
         """A queue receiving every Event from now on (oldest dropped when full)."""

@@ -75,21 +75,7 @@ class Printer(Driver):
         job = Job(source, job_id, start_line)
         return self._call("start", job)
 
-    def pause(self):
-        """Stop feeding the job, then run the pause (park) script; heaters stay on."""
-        return self._call("pause")
-
-    def resume(self):
-        """Run the resume (unpark) script, then continue with the exact next job line."""
-        return self._call("resume")
-
-    def cancel(self):
-        """Stop feeding the job, then run the cancel script (heaters off, lift, motors off)."""
-        return self._call("cancel")
-
-    def send(self, command):
-        """Queue one out-of-band command (console); it goes before further job lines."""
-        return self._call("send", command)
+    # pause, resume, cancel, send: see events.Publisher.
 
     def estop(self):
         """Emergency stop: write M112 now, ahead of everything queued; returns the time sent."""
@@ -115,9 +101,3 @@ class Printer(Driver):
         self._drop_port()
         if self.simulator is not None:
             self.simulator.stop()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()

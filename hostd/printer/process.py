@@ -96,17 +96,7 @@ class PrinterProcess(Publisher):
             self.job = JobProxy(snapshot)
         return self.job
 
-    def pause(self):
-        return self._call("pause")
-
-    def resume(self):
-        return self._call("resume")
-
-    def cancel(self):
-        return self._call("cancel")
-
-    def send(self, command):
-        return self._call("send", command)
+    # pause, resume, cancel, send: see events.Publisher.
 
     def estop(self):
         return self._call("estop")
@@ -123,12 +113,6 @@ class PrinterProcess(Publisher):
             self._process.kill()
             self._process.wait()
         self._conn.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     # -- plumbing --------------------------------------------------------------------------
 
