@@ -28,6 +28,20 @@ _PARTIAL_SUFFIXES = (".part", ".tmp", ".crdownload", ".partial", ".download", ".
 MAX_NAME_BYTES = 200
 
 
+class QuietShutdownRace(logging.Filter):
+    """Drops watchdog's ERROR that its inotify thread read one last event while stopping.
+
+    watchdog logs it when something in the folder changes in the instant the
+    observer stops (seen when stopping the daemon mid-print); nothing is lost,
+    since the next start scans the folder, and to a user it reads like a failure.
+    """
+
+    MESSAGE = "InotifyEmitter.queue_events() called when the thread is inactive"
+
+    def filter(self, record):
+        return record.getMessage() != self.MESSAGE
+
+
 def ignored(name):
     """Hidden, temporary and partial-download names (``.*``, ``*.part``, ``~$*`` ...)."""
     low = name.lower()
@@ -108,6 +122,9 @@ class Watcher:
         self.drop_dir.mkdir(parents=True, exist_ok=True)
         try:
             from watchdog.observers import Observer
+            inotify_log = logging.getLogger("watchdog.observers.inotify")
+            if not any(isinstance(f, QuietShutdownRace) for f in inotify_log.filters):
+                inotify_log.addFilter(QuietShutdownRace())
             observer = Observer()
             observer.schedule(_Events(self), str(self.drop_dir), recursive=True)
             observer.daemon = True
