@@ -213,13 +213,8 @@ def _report(path, profile, p, vrep, srep, timing):
         },
         "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])],
                         fold_area_fraction=p.fold_fraction),
-        "simulation": {"mean_displacement_mm": float(sim.mean_displacement_mm),
-                       "max_displacement_mm": float(sim.max_displacement_mm),
-                       "mean_displacement_fraction": float(
-                           sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
-                       "iterations": int(sim.iterations), "converged": bool(sim.converged),
-                       "mirrored": bool(sim.mirrored),
-                       "sheet_vertices": int(sim.sheet_vertices)},
+        "simulation": dict(sim.report(), mean_displacement_fraction=float(
+            sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9))),
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         "printable": p.printable,
