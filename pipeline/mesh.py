@@ -25,8 +25,8 @@ from pipeline.errors import MeshingError
 from pipeline.geometry import Mesh, SimSheet, polygon_area, signed_areas_2d, unique_edges
 from pipeline.gradient import Snapper, trace
 from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces, points_at
-from pipeline.triangulate import (ear_clip, fan, main_runs, run_level, sim_sheet, split_ring,
-                                  trace_faces, zip_strips)
+from pipeline.triangulate import (drop_degenerate, ear_clip, fan, main_runs, run_level, sim_sheet,
+                                  split_ring, trace_faces, zip_strips)
 
 
 def build_mesh(hf, isoline_step_mm=1.0, gradient_spacing_mm=2.0, l_u_mm=0.25,
@@ -379,8 +379,7 @@ class _Graph:
             zipped = zipped[~np.isin(strip, folded)]
             extra_tris.extend(ear_clip(xy, zip_rings[k]) for k in folded)
         faces = np.concatenate([zipped] + extra_tris)
-        faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
-                      & (faces[:, 0] != faces[:, 2])]
+        faces = drop_degenerate(faces)
         nan = np.isnan(level)
         level[nan] = field.value(xy[nan])
         sheet = None

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pipeline.flatten import DEFAULT_WEIGHTS, _printing_mask
-from pipeline.geometry import edge_index, edge_lengths, unique_edges
+from pipeline.geometry import edge_index, edge_lengths
 from pipeline.constraints import topology
 from pipeline.pd import EdgeTargets, PDSystem, minimize
 
@@ -157,7 +157,9 @@ def simulate(mesh, flat, iterations=300, weights=None, tol=1e-4, s_min=None, s_m
     if sheet is not None:
         # A coarse diagonal crosses several fine triangles: the strip it spans shrinks
         # along the isolines only, so its length follows that anisotropic shrink.
-        new = ~is_print & (edge_index(unique_edges(mesh.faces), kept[top.edges]) < 0)
+        # The mesh's printing and bridge edges are all its edges.
+        fine = np.concatenate([mesh.printing_edges, mesh.bridge_edges])
+        new = ~is_print & (edge_index(fine, kept[top.edges]) < 0)
         G = _shrink_metric(xy, mesh.printing_edges, target / l_print, len(V))
         a, b = kept[top.edges[new, 0]], kept[top.edges[new, 1]]
         d = xy[b] - xy[a]

@@ -100,6 +100,12 @@ def fan(xy, ring, centre_id, centre_xy):
     return np.stack([np.full(len(ring), centre_id), ring, np.roll(ring, -1)], axis=1)
 
 
+def drop_degenerate(faces):
+    """``faces`` ((m, 3) int) without those that repeat a vertex."""
+    return faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+                 & (faces[:, 0] != faces[:, 2])]
+
+
 def ear_clip(xy, ring):
     """Triangulate a simple polygon (counter-clockwise ``ring`` of vertex ids)."""
     coords = np.ascontiguousarray(xy[ring], dtype=np.float64)
@@ -238,8 +244,7 @@ def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
         if not bad:
             break
         keep[np.concatenate(bad)] = True
-    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
-                  & (faces[:, 0] != faces[:, 2])]
+    faces = drop_degenerate(faces)
     dropped, between, t = [], [], []
     for chain, _ in arcs:
         gone = np.nonzero(~keep[chain])[0]
