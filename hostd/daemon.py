@@ -18,7 +18,7 @@ import shutil
 import signal
 import threading
 import time
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from hostd import farm as farm_mod
 from hostd import jobs as J
@@ -476,8 +476,12 @@ class Daemon(ControlMixin):
     # -- endings -----------------------------------------------------------------------------------
 
     def _fail(self, job, reason, code=None):
-        # People know the file by the name they dropped, not by its claimed path.
+        # People know the files by the names they dropped, not by their claimed paths.
         reason = reason.replace(str(job["input_path"]), job["rel_path"])
+        if job["sidecar_path"]:
+            dropped = PurePosixPath(job["rel_path"])
+            reason = reason.replace(str(job["sidecar_path"]),
+                                    str(dropped.with_name(dropped.stem + ".yaml")))
         log.warning("job %s failed: %s", job["id"], reason)
         self._to_failed(job, reason, state=J.FAILED, code=code or "job.failed")
 

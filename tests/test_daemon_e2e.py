@@ -109,7 +109,8 @@ def test_bad_config_and_bad_sidecar(tmp_path, dome):
         shutil.copy(dome, drop_dir / "odd.npy")
         wait_for(lambda: states(cfg).get("odd.npy") == "failed", timeout=30, what="fail", proc=d)
         reason = (tmp_path / "n" / "share" / "failed" / "odd.error.txt").read_text()
-        assert "size_mm" in reason and "odd.yaml" in reason
+        assert "size_mm" in reason and reason.startswith("odd.yaml: ")
+        assert ".claimed" not in reason  # named as dropped, not by the claim folder
         assert (tmp_path / "n" / "share" / "failed" / "odd.yaml").exists()
         # A second daemon on the same state folder is refused clearly.
         r = hostd("run", "--config", cfg, timeout=30)
