@@ -11,7 +11,6 @@ motors off), leaves printing jobs ``interrupted``, stops the plans (their jobs a
 planned again on the next start) and exits within ``stop_timeout_s``.
 """
 
-import fcntl
 import logging
 import os
 import shutil
@@ -23,59 +22,14 @@ from pathlib import Path, PurePosixPath
 from hostd import farm as farm_mod
 from hostd import jobs as J
 from hostd.control import ControlMixin
-from hostd.errors import HostdError
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
+from hostd.lock import DaemonLock
 from hostd.notify import Notifier
 from hostd.planning import PlanProcess
 from hostd.watcher import INPUT_SUFFIXES, Watcher, name_problem
 
 log = logging.getLogger("hostd.daemon")
 TICK_S = 0.05
-
-
-class DaemonLock:
-    """``state_dir/hostd.pid`` held with flock while a daemon runs (one per state folder)."""
-
-    def __init__(self, path):
-        self.path = Path(path)
-        self.fd = None
-
-    def acquire(self):
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise HostdError("another hostd (pid %s) already runs with this state folder"
-                             % (running_pid(self.path) or "?"), code="daemon.running",
-                             file=self.path, fix="stop it first, or give this one its own "
-                                                 "state_dir") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, b"%d\n" % os.getpid())
-        self.fd = fd
-
-    def release(self):
-        if self.fd is not None:
-            os.close(self.fd)
-            self.fd = None
-
-
-def running_pid(lock_path):
-    """The pid of the daemon holding ``lock_path``, or None when no daemon runs."""
-    try:
-        fd = os.open(lock_path, os.O_RDONLY)
-    except OSError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None          # nobody holds it
-    except OSError:
-        text = os.read(fd, 32).decode(errors="replace").strip()
-        return int(text) if text.isdigit() else -1
-    finally:
-        os.close(fd)
 
 
 def link_settings(printer_config):

@@ -27,8 +27,8 @@ Viewer comments: Cura's ``;FLAVOR:``, ``;TIME:``, ``;Filament used:``,
 ``; filament used [mm] =`` / ``[g]`` / ``; estimated printing time`` lines.
 The time estimate is :mod:`pipeline.printtime`'s trapezoid model.
 
-Strings are built per field with vectorised integer formatting (lookup tables
-for the fractional digits) over all moves of a layer at once; only the travel
+Strings are built per field with vectorised integer formatting
+(:mod:`pipeline.numfmt`) over all moves of a layer at once; only the travel
 blocks between traces are built in a Python loop over traces.
 """
 
@@ -42,6 +42,7 @@ import numpy as np
 from pipeline import __version__
 from pipeline.arcs import moves_with_arcs
 from pipeline.errors import PlanError
+from pipeline.numfmt import fmt, format_fixed
 from pipeline.printtime import (ACCELERATION_MM_S2, JUNCTION_DEVIATION_MM, MAX_Z_SPEED_MM_S,
                                 estimate_time_text, polyline_time_s, trapezoid_s)
 
@@ -105,58 +106,6 @@ class GcodeSettings:
     @property
     def filament_area_mm2(self):
         return math.pi * self.filament_mm ** 2 / 4.0
-
-
-# ---------------------------------------------------------------- formatting
-
-_FRAC_TABLES = {}
-_INT_TABLE = np.array([str(i) for i in range(10000)], dtype=object)
-
-
-def _frac_table(decimals):
-    t = _FRAC_TABLES.get(decimals)
-    if t is None:
-        t = np.array([""] + [("." + str(i).zfill(decimals)).rstrip("0")
-                             for i in range(1, 10 ** decimals)], dtype=object)
-        _FRAC_TABLES[decimals] = t
-    return t
-
-
-def format_fixed(q, decimals, prefix=""):
-    """Compact decimal strings of fixed-point integers.
-
-    Parameters
-    ----------
-    q : (n,) int
-        Values times ``10**decimals`` (e.g. micrometres for 3 decimals).
-    decimals : int
-    prefix : str
-        Put before each number (e.g. ``" X"``).
-
-    Returns
-    -------
-    (n,) object array of str, no trailing zeros (``12.5``, ``3``, ``-0.05``).
-    """
-    q = np.asarray(q, dtype=np.int64)
-    scale = 10 ** decimals
-    a = np.abs(q)
-    ip, fp = np.divmod(a, scale)
-    if ip.size and ip.max() < len(_INT_TABLE):
-        ints = _INT_TABLE[ip]
-    else:
-        ints = np.array(list(map(str, ip.tolist())), dtype=object)
-    s = ints + _frac_table(decimals)[fp]
-    neg = q < 0
-    if neg.any():
-        s[neg] = "-" + s[neg]
-    if prefix:
-        s = prefix + s
-    return s
-
-
-def fmt(value, decimals=3):
-    """One number, compact (no trailing zeros): str."""
-    return format_fixed(np.array([int(round(value * 10 ** decimals))]), decimals)[0]
 
 
 # --------------------------------------------------------------- geometry

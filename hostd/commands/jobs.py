@@ -46,7 +46,7 @@ def _states():
 
 def _open(args, need_daemon):
     from hostd.config import load_config
-    from hostd.daemon import running_pid
+    from hostd.lock import running_pid
     from hostd.jobs import JobStore
     config = load_config(args.config)
     pid = running_pid(config.lock_path)
