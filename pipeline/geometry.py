@@ -118,6 +118,21 @@ def signed_areas_2d(points, faces):
     return 0.5 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
 
 
+def hat_gradients(xy, faces):
+    """Gradients of the linear hat functions per face: ((m, 3, 2) 1/mm, signed areas (m,) mm^2).
+
+    A per-vertex field ``f`` has gradient ``einsum("mi,mid->md", f[faces], gphi)`` in each face.
+    """
+    p = xy[faces]                                   # (m, 3, 2)
+    area = signed_areas_2d(xy, faces)
+    a2 = np.where(np.abs(area) > 1e-12, 2.0 * area, 1e-12)
+    # grad(phi_i) = J(p_{i+2} - p_{i+1}) / 2A with J a quarter turn counter-clockwise.
+    e = np.roll(p, -2, axis=1) - np.roll(p, -1, axis=1)
+    gphi = np.stack([-e[..., 1], e[..., 0]], axis=-1) / a2[:, None, None]
+    gphi[np.abs(area) <= 1e-12] = 0.0
+    return gphi, area
+
+
 def edge_index(edges, query):
     """Row of each ``query`` edge in sorted-pair ``edges``; -1 where absent.
 

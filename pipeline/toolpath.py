@@ -21,7 +21,8 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
-from pipeline.geometry import boundary_loops, signed_areas_2d, unique_edges
+from pipeline.geometry import boundary_loops, hat_gradients, unique_edges
+from pipeline.pathstats import path_metrics
 
 
 @dataclass
@@ -55,22 +56,16 @@ def path_field(xy, faces, level, path_width_mm):
     u : (n,) float, 0 at the lowest vertex; level sets 1 apart are paths.
     """
     n = len(xy)
-    p = xy[faces]                                   # (m, 3, 2)
-    area = signed_areas_2d(xy, faces)
-    a2 = np.where(np.abs(area) > 1e-12, 2.0 * area, 1e-12)
-    # grad(phi_i) = J(p_{i+2} - p_{i+1}) / 2A with J a quarter turn counter-clockwise.
-    e = np.roll(p, -2, axis=1) - np.roll(p, -1, axis=1)
-    gphi = np.stack([-e[..., 1], e[..., 0]], axis=-1) / a2[:, None, None]   # (m, 3, 2)
+    gphi, area = hat_gradients(xy, faces)
     glevel = np.einsum("mi,mid->md", level[faces], gphi)
     norm = np.linalg.norm(glevel, axis=1)
     has_dir = norm > 1e-9
     target = np.where(has_dir[:, None], glevel / np.maximum(norm, 1e-12)[:, None], 0.0)
     target /= path_width_mm
     # Faces with no isoline direction (rare) only smooth the field; collapsed
-    # faces (a folded layout) carry no gradient at all.
+    # faces (a folded layout) carry no gradient at all (hat_gradients zeroes them).
     w = np.abs(area) * np.where(has_dir, 1.0, 1e-3)
     w[np.abs(area) <= 1e-12] = 0.0
-    gphi[np.abs(area) <= 1e-12] = 0.0
     m = len(faces)
     rows = np.stack([np.arange(m) * 2, np.arange(m) * 2 + 1], axis=1)[:, None, :]
     rows = np.broadcast_to(rows, (m, 3, 2))
@@ -276,7 +271,7 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
     shapely.prepare(footprint)
     traces, tsig = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
                                  merge_sigma, footprint)
-    info = _metrics(traces, tsig, raw, xy, outline, pw)
+    info = path_metrics(traces, tsig, raw, xy, faces, level, u, outline, pw)
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
 
 
@@ -405,15 +400,6 @@ def _nearest_entry(tree, entries, owner, index, visited, at):
     return int(owner[j]), int(index[j]), float(dd.min())
 
 
-def _densify(points, step):
-    """Points along a polyline at most ``step`` apart: (q, 2)."""
-    d = np.diff(points, axis=0)
-    n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / step).astype(int), 1)
-    seg = np.repeat(np.arange(len(d)), n)
-    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / n[seg]
-    return np.vstack([points[seg] + d[seg] * t[:, None], points[-1:]])
-
-
 def boundary_loop(faces):
     """Outer boundary vertex ids of a disk mesh in order: (k,) int."""
     return boundary_loops(faces)[0]
@@ -425,56 +411,3 @@ def _outline_polygon(xy, faces):
 
     poly = shapely.Polygon(xy[boundary_loop(faces)])
     return poly if poly.is_valid else shapely.make_valid(poly)
-
-
-def _metrics(traces, tsig, raw, xy, poly, pw):
-    import shapely
-
-    seg_count = sum(len(s) for s in tsig)
-    length = 0.0
-    sharp = 0
-    for p in traces:
-        d = np.diff(p, axis=0)
-        length += float(np.hypot(d[:, 0], d[:, 1]).sum())
-        if len(d) > 1:
-            cosang = np.einsum("ij,ij->i", d[:-1], d[1:]) / np.maximum(
-                np.linalg.norm(d[:-1], axis=1) * np.linalg.norm(d[1:], axis=1), 1e-12)
-            sharp += int((cosang < 0).sum())
-    # Spacing: from points on each path to the nearest point of another path.
-    samples, label = [], []
-    for c, (p, _) in enumerate(raw):
-        q = _densify(p, pw / 4)
-        samples.append(q)
-        label.append(np.full(len(q), c))
-    samples = np.concatenate(samples)
-    label = np.concatenate(label)
-    tree = cKDTree(samples)
-    probe = np.arange(0, len(samples), 3)
-    d, i = tree.query(samples[probe], k=14, distance_upper_bound=3 * pw)
-    i = np.minimum(i, len(label) - 1)
-    other = (label[i] != label[probe][:, None]) & np.isfinite(d)
-    has = other.any(axis=1)
-    spacing = d[has, np.argmax(other[has], axis=1)]
-    # Coverage and overlap on a grid over the flat footprint (``poly``, its outline).
-    res = pw / 2.5
-    x0, y0 = xy.min(axis=0)
-    x1, y1 = xy.max(axis=0)
-    X, Y = np.meshgrid(np.arange(x0, x1, res) + res / 2, np.arange(y0, y1, res) + res / 2)
-    inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
-    grid = np.column_stack([X.ravel()[inside], Y.ravel()[inside]])
-    # Only neighbours within half a path width decide coverage and overlap, and
-    # the tighter bound prunes most of the tree walk (nextafter: a point exactly
-    # half a width away still counts, as the tests below use <=).
-    d, i = tree.query(grid, k=6, distance_upper_bound=np.nextafter(pw / 2, np.inf))
-    covered = d[:, 0] <= pw / 2
-    first = label[np.minimum(i[:, 0], len(label) - 1)]
-    lab = label[np.minimum(i, len(label) - 1)]
-    twice = ((lab != first[:, None]) & (d < 0.999 * pw / 2)).any(axis=1) & covered
-    pct = np.percentile(spacing, [5, 50, 95]) if len(spacing) else [np.nan] * 3
-    return {"traces": len(traces), "segments": int(seg_count), "length_mm": length,
-            "travel_moves": max(len(traces) - 1, 0), "sharp_turns": sharp,
-            "spacing_mm": {"target": pw, "p05": float(pct[0]), "p50": float(pct[1]),
-                           "p95": float(pct[2])},
-            "coverage": float(covered.mean()) if len(grid) else 0.0,
-            "overlap": float(twice.mean()) if len(grid) else 0.0,
-            "loops_and_arcs": len(raw)}

@@ -74,6 +74,9 @@ def test_plan_writes_every_output_and_the_report_contract(small_dome, tmp_path):
     assert report["input"] == "dome.npy" and report["profile"] == "generic-0.5mm"
     assert report["gcode"]["bytes"] == (out / "dome.gcode").stat().st_size
     assert "invalid edges" in r.stdout
+    # Added beside the contract: how far the paths turn away from the isolines.
+    angle = report["toolpath"]["isoline_angle_deg"]
+    assert set(angle) == {"p50", "p95"} and 0.0 <= angle["p50"] <= angle["p95"] <= 90.0
 
 
 BAD_INPUTS = {

@@ -5,6 +5,7 @@ import pytest
 import shapely
 
 from conftest import reference_toolpaths
+from pipeline.pathstats import isoline_angles
 from pipeline.toolpath import boundary_loop, merge_collinear, path_field, plan_toolpaths
 
 PW = 0.48
@@ -25,6 +26,28 @@ def test_dome_is_one_continuous_trace_without_sharp_turns():
     assert tp.info["traces"] == 1
     assert tp.info["travel_moves"] == 0
     assert tp.info["sharp_turns"] == 0
+    # Concentric isolines admit equally spaced paths exactly along them.
+    assert tp.info["isoline_angle_deg"]["p95"] < 1.0, tp.info["isoline_angle_deg"]
+
+
+def test_isoline_angle_is_the_angle_between_paths_and_isolines():
+    # Isolines x = const; paths u = const on lines turned 10 degrees (or 170: the
+    # sense of a path does not matter, its direction does).
+    g = np.linspace(0.0, 10.0, 11)
+    X, Y = np.meshgrid(g, g)
+    xy = np.column_stack([X.ravel(), Y.ravel()])
+    i = np.arange(121).reshape(11, 11)
+    a, b, c, d = i[:-1, :-1], i[:-1, 1:], i[1:, :-1], i[1:, 1:]
+    faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                            np.stack([a, d, c], -1).reshape(-1, 3)])
+    level = xy[:, 0]
+    for turn_deg in (10.0, 170.0):
+        t = np.radians(turn_deg)
+        u = (xy @ [np.cos(t), np.sin(t)]) / 0.5
+        angle, path_mm = isoline_angles(xy, faces, level, u)
+        np.testing.assert_allclose(angle, 10.0, atol=1e-9)
+        # path length per face: area x level sets per mm (here 2 per mm)
+        np.testing.assert_allclose(path_mm, 0.5 * 2.0, rtol=1e-9)
 
 
 def test_two_peaks_need_few_traces():
