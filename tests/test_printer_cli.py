@@ -2,8 +2,12 @@
 
 import json
 import os
+import pty
+import re
+import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -101,23 +105,55 @@ def test_stream_to_missing_port_fails_cleanly(tmp_path):
     assert time.monotonic() - started < 30
 
 
+def _terminal_sigint():
+    # A runner that starts the suite in the background (``cmd &``) hands its children
+    # SIGINT ignored, and Python then never raises KeyboardInterrupt: give the stream
+    # what a terminal gives a foreground command.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_cancels_the_stream(sim_printer, tmp_path):
-    import signal
     gcode = tmp_path / "part.gcode"
     gcode.write_text("\n".join(moves(2000, feed_mm_min=600)) + "\n")    # minutes of printing
     link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "0.5")
+    # stderr on a pty, as at a terminal: the progress bar shows when lines are confirmed.
+    master, slave = pty.openpty()
     stream = subprocess.Popen(hostd("stream", str(gcode), "--port", link, "--baud", "250000"),
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=slave, text=True,
+                              preexec_fn=_terminal_sigint)
+    os.close(slave)
+    chunks = []
+
+    def drain():    # keep the pty empty so the stream never blocks writing its bar
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:     # the stream has exited: its end of the pty is closed
+                return
+            if not chunk:
+                return
+            chunks.append(chunk)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
     try:
-        time.sleep(1.0)     # connected and printing by then
+        deadline = time.monotonic() + 60
+        while not re.search(rb" [1-9][0-9]*/2000 lines", b"".join(chunks)):
+            assert stream.poll() is None and time.monotonic() < deadline, b"".join(chunks)
+            time.sleep(0.05)
         stream.send_signal(signal.SIGINT)
-        out, err = stream.communicate(timeout=30)
+        out, _ = stream.communicate(timeout=30)
     finally:
         if stream.poll() is None:
             stream.kill()
-    assert stream.returncode == 1
+        reader.join(5)
+        os.close(master)
+    shown = b"".join(chunks)
+    err = shown.decode(errors="replace")
+    assert stream.returncode == 1, err
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["result"] == "cancelled", err
     assert 0 < summary["lines"] < 2000
+    assert "cancelling" in err
     recorded = stop(proc, record)
     assert recorded["commands"][-1] == "M84"      # the cancel script ran to its end
