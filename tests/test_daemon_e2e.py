@@ -217,6 +217,9 @@ def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pt
     from pipeline.profile import load_profile
 
     sim, port = pty_sim
+    prof = load_profile("generic-0.5mm")
+    park = script_lines(prof.render_gcode("pause"))
+    unpark = script_lines(prof.render_gcode("resume"))
     cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
                                             "port": port, "baud": 115200}])
     with daemon(cfg) as d:
@@ -225,7 +228,8 @@ def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pt
                  what="printing")
         r = hostd("pause", "p1", "-c", cfg)
         assert r.returncode == 0, r.stderr
-        time.sleep(1.0)                    # the pause script has run by now
+        wait_for(lambda: job_commands(sim)[-len(park):] == park, timeout=30, proc=d,
+                 what="the pause script run")
         before = len(sim.commands())
         time.sleep(1.0)
         assert len(sim.commands()) == before, "the printer was fed while paused"
@@ -238,9 +242,6 @@ def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pt
     job = jobs(cfg)[0]
     gcode = gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
     done = job_commands(sim)
-    prof = load_profile("generic-0.5mm")
-    park = script_lines(prof.render_gcode("pause"))
-    unpark = script_lines(prof.render_gcode("resume"))
     # Exactly the file, with the profile's park and unpark between two of its lines.
     k = next(i for i, (a, b) in enumerate(zip(done, gcode)) if a != b)
     assert done[k:k + len(park) + len(unpark)] == park + unpark
