@@ -1,5 +1,6 @@
 """``hostd stream`` end to end through ``hostd sim-printer`` on a real pty (two processes)."""
 
+import contextlib
 import json
 import os
 import pty
@@ -112,15 +113,15 @@ def _terminal_sigint():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def test_ctrl_c_cancels_the_stream(sim_printer, tmp_path):
-    gcode = tmp_path / "part.gcode"
-    gcode.write_text("\n".join(moves(2000, feed_mm_min=600)) + "\n")    # minutes of printing
-    link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "0.5")
-    # stderr on a pty, as at a terminal: the progress bar shows when lines are confirmed.
+@contextlib.contextmanager
+def terminal_stream(*args):
+    """``hostd stream ARGS`` with stderr on a pty, as at a terminal (progress shown).
+
+    Yields (process, shown): ``shown()`` is the text written to the terminal so far.
+    """
     master, slave = pty.openpty()
-    stream = subprocess.Popen(hostd("stream", str(gcode), "--port", link, "--baud", "250000"),
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=slave, text=True,
-                              preexec_fn=_terminal_sigint)
+    proc = subprocess.Popen(hostd("stream", *args), cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=slave, text=True, preexec_fn=_terminal_sigint)
     os.close(slave)
     chunks = []
 
@@ -137,23 +138,52 @@ def test_ctrl_c_cancels_the_stream(sim_printer, tmp_path):
     reader = threading.Thread(target=drain, daemon=True)
     reader.start()
     try:
-        deadline = time.monotonic() + 60
-        while not re.search(rb" [1-9][0-9]*/2000 lines", b"".join(chunks)):
-            assert stream.poll() is None and time.monotonic() < deadline, b"".join(chunks)
-            time.sleep(0.05)
-        stream.send_signal(signal.SIGINT)
-        out, _ = stream.communicate(timeout=30)
+        yield proc, lambda: b"".join(chunks).decode(errors="replace")
     finally:
-        if stream.poll() is None:
-            stream.kill()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
         reader.join(5)
         os.close(master)
-    shown = b"".join(chunks)
-    err = shown.decode(errors="replace")
-    assert stream.returncode == 1, err
+
+
+def wait_shown(proc, shown, pattern, timeout_s=60):
+    deadline = time.monotonic() + timeout_s
+    while not re.search(pattern, shown()):
+        assert proc.poll() is None and time.monotonic() < deadline, shown()
+        time.sleep(0.05)
+
+
+def test_ctrl_c_cancels_the_stream(sim_printer, tmp_path):
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("\n".join(moves(2000, feed_mm_min=600)) + "\n")    # minutes of printing
+    link, record, proc = sim_printer("--baud", "250000", "--advanced-ok", "1", "--time-scale", "0.5")
+    with terminal_stream(str(gcode), "--port", link, "--baud", "250000") as (stream, shown):
+        wait_shown(stream, shown, r" [1-9][0-9]*/2000 lines")     # printing
+        stream.send_signal(signal.SIGINT)
+        out, _ = stream.communicate(timeout=30)
+    assert stream.returncode == 1, shown()
     summary = json.loads(out.strip().splitlines()[-1])
-    assert summary["result"] == "cancelled", err
+    assert summary["result"] == "cancelled", shown()
     assert 0 < summary["lines"] < 2000
-    assert "cancelling" in err
+    assert "cancelling" in shown()
     recorded = stop(proc, record)
     assert recorded["commands"][-1] == "M84"      # the cancel script ran to its end
+
+
+def test_ctrl_c_while_connecting_ends_with_the_json_line(sim_printer, tmp_path):
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text("\n".join(moves(100)) + "\n")
+    # The firmware takes 20 s to boot: the stream waits in its handshake.
+    link, record, proc = sim_printer("--baud", "250000", "--boot-s", "20")
+    with terminal_stream(str(gcode), "--port", link, "--baud", "250000") as (stream, shown):
+        wait_shown(stream, shown, r"connecting to .* at 250000 baud")
+        started = time.monotonic()
+        stream.send_signal(signal.SIGINT)
+        out, _ = stream.communicate(timeout=30)
+        elapsed = time.monotonic() - started
+    assert stream.returncode == 1, shown()
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["result"] == "cancelled" and summary["lines"] == 0, summary
+    assert "before printing" in summary["error"] and "Traceback" not in shown()
+    assert elapsed < 10, elapsed    # not after the firmware has booted

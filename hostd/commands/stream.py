@@ -7,7 +7,8 @@ progress bar on a terminal, and end with one JSON line on stdout::
      "link_utilisation": f, "result": "done"|"cancelled"|"error", "error": str|null}
 
 ``link_utilisation`` is bytes sent per second over the link's byte rate (baud/10).
-Ctrl-C cancels (runs the cancel G-code); a second Ctrl-C is an emergency stop.
+Ctrl-C cancels (runs the cancel G-code; before printing starts it only disconnects,
+with ``result: cancelled``); a second Ctrl-C is an emergency stop.
 Exit status 0 only when the result is ``done``.
 """
 
@@ -46,6 +47,8 @@ def run(args):
                    result="error", error=None)
     printer = None
     try:
+        if show:
+            print("hostd stream: connecting to %s at %d baud" % (args.port, args.baud), file=sys.stderr)
         printer = Printer(args.port, settings)
         printer.connect()
         job = printer.start(args.file)
@@ -54,6 +57,10 @@ def run(args):
     except PrinterError as exc:
         summary["error"] = str(exc)
         print("hostd stream: %s" % exc, file=sys.stderr)
+    except KeyboardInterrupt:
+        # _follow handles Ctrl-C once printing; before that there is nothing to cancel.
+        summary.update(result="cancelled", error="interrupted before printing started")
+        print("\nhostd stream: interrupted before printing started", file=sys.stderr)
     finally:
         if printer is not None:
             printer.close()
