@@ -2,7 +2,8 @@
 
 Each plan runs in its own child (``python -m hostd.planning``), which limits its
 address space (RLIMIT_AS) and CPU time (RLIMIT_CPU) before importing anything heavy;
-the parent also kills it after ``time_limit_s`` of wall time. A plan that crashes,
+the parent also kills it after ``time_limit_s`` of wall time, and on Linux the kernel
+kills it when the thread that started it (the daemon's loop) dies. A plan that crashes,
 runs out of memory or runs away fails its own job only. The child writes
 ``result.json`` into its output folder: ``{"ok": true}`` or the error's dict.
 """
@@ -26,7 +27,8 @@ class PlanProcess:
         self.time_limit_s = float(time_limit_s)
         self.started = time.monotonic()
         args = json.dumps({"input": str(input_path), "profile": profile, "outdir": str(outdir),
-                           "memory_mb": int(memory_mb), "cpu_s": int(time_limit_s) + 5})
+                           "memory_mb": int(memory_mb), "cpu_s": int(time_limit_s) + 5,
+                           "parent_pid": os.getpid()})
         env = dict(os.environ)
         env["PYTHONPATH"] = _REPO + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         # Few threads per child: several plans must not starve the streaming thread.
@@ -101,8 +103,30 @@ def plan_result(plan):
             "fix": worst["fix"] + " (the outbox has the pictures that show where)"}
 
 
+def _die_with_parent(parent_pid):
+    """Have the kernel kill this plan when the daemon that started it dies.
+
+    A daemon killed outright (kill -9, a crash; outside systemd, which kills the
+    whole unit) would otherwise leave its plans running for up to their time limit,
+    next to the plans the restarted daemon starts for the same jobs: on a 1 GB
+    printer host that is how one out-of-memory kill becomes several. Linux only
+    (prctl PR_SET_PDEATHSIG); elsewhere the plan runs to its limits.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+    pr_set_pdeathsig = 1
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(pr_set_pdeathsig, int(signal.SIGKILL), 0, 0, 0) != 0:
+        return
+    if parent_pid and os.getppid() != parent_pid:   # it died before prctl took effect
+        os._exit(3)
+
+
 def child_main(argv):
     args = json.loads(argv[0])
+    _die_with_parent(args.get("parent_pid"))
     _limit(args.get("memory_mb"), args.get("cpu_s"))
     try:
         os.nice(5)   # the streaming thread in the parent comes first

@@ -1,6 +1,7 @@
 """systemd units: required hardening and notify settings; systemd-analyze verify if present."""
 
 import configparser
+import os
 import shutil
 import subprocess
 import sys
@@ -75,6 +76,43 @@ def test_plan_memory_limit_fails_the_plan(tmp_path):
     proc.proc.wait(120)
     result = proc.poll()
     assert not result["ok"] and result["code"] in ("plan.memory_limit", "plan.crashed")
+
+
+def _alive(pid):
+    """True while ``pid`` runs (a zombie waiting for its reaper counts as gone)."""
+    try:
+        with open("/proc/%d/status" % pid) as f:
+            return not any(line.startswith("State:") and "Z" in line for line in f)
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_plan_dies_with_the_daemon_that_started_it(tmp_path):
+    import signal
+    import time
+    from daemon_helpers import write_dome
+    src = write_dome(tmp_path / "dome.npy", diameter_mm=120, height_mm=20)   # plans for ~10 s
+    starter = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\n"
+         "from hostd.planning import PlanProcess\n"
+         "p = PlanProcess('j1', sys.argv[1], 'generic-0.5mm', sys.argv[2], 120, 4096)\n"
+         "print(p.pid, flush=True)\n"
+         "time.sleep(120)\n", str(src), str(tmp_path / "out")],
+        cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    plan_pid = int(starter.stdout.readline())
+    try:
+        time.sleep(1.0)                      # the plan is under way
+        assert _alive(plan_pid)
+        starter.send_signal(signal.SIGKILL)  # the daemon is killed outright
+        starter.wait(10)
+        deadline = time.monotonic() + 5
+        while _alive(plan_pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(plan_pid), "the plan outlived the daemon that started it"
+    finally:
+        if _alive(plan_pid):
+            os.kill(plan_pid, signal.SIGKILL)
 
 
 def test_a_plan_marked_not_printable_fails_its_job_with_the_reasons():
