@@ -195,7 +195,13 @@ class Daemon(ControlMixin):
     def _recover(self):
         for job_id in self.store.recover():
             job = self.store.get(job_id)
+            if job["state"] == J.QUEUED:
+                log.warning("job %s: %s was being planned when hostd stopped; planning it again",
+                            job_id, job["rel_path"])
             if job["state"] == J.INTERRUPTED:
+                log.warning("job %s: %s was printing when hostd stopped (last confirmed line %d); "
+                            "interrupted, the file is in failed/", job_id, job["rel_path"],
+                            job["last_line"])
                 self._to_failed(job, "The print of %s was interrupted: the daemon stopped or "
                                      "crashed while printing (last confirmed line %d). Check "
                                      "the printer and the bed, then print it again with "

@@ -154,6 +154,7 @@ def test_kill_during_planning_then_restart_completes(tmp_path, dome):
     with daemon(cfg) as d:
         wait_for(lambda: states(cfg) == {"dome.npy": "done"}, timeout=90, what="done", proc=d)
         assert d.stop() == 0
+        assert "dome.npy was being planned when hostd stopped; planning it again" in d.output()
     kinds = [e for e in hostd("job", jobs(cfg)[0]["id"], "-c", cfg).stdout.splitlines()]
     assert any("restarted while planning" in k for k in kinds)
 
@@ -171,6 +172,8 @@ def test_kill_during_printing_then_restart_is_interrupted(tmp_path, dome):
     with daemon(cfg) as d:
         wait_for(lambda: states(cfg) == {"dome.npy": "interrupted"}, timeout=20, proc=d,
                  what="interrupted")
+        wait_for(lambda: "dome.npy was printing when hostd stopped" in d.output(), timeout=10,
+                 proc=d, what="the recovery in the log")
         failed = tmp_path / "share" / "failed"
         assert (failed / "dome.npy").read_bytes() == dome.read_bytes()
         assert "requeue" in (failed / "dome.error.txt").read_text()
