@@ -8,8 +8,10 @@ runs out of memory or runs away fails its own job only. The child writes
 ``result.json`` into its output folder: ``{"ok": true}`` or the error's dict.
 """
 
+import errno
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -124,6 +126,23 @@ def _die_with_parent(parent_pid):
         os._exit(3)
 
 
+def _disk_full(outdir):
+    """The verdict on a plan whose outputs did not fit on the disk.
+
+    Its partial outputs go first, which also makes room for the verdict itself.
+    """
+    for path in Path(outdir).iterdir():
+        if path.is_file():
+            path.unlink()
+    free_mb = shutil.disk_usage(outdir).free / 1e6
+    where = Path(outdir).parent.parent   # outbox/.cache/<staging>/ -> the outbox
+    return {"ok": False, "code": "plan.disk_full",
+            "text": "the disk holding %s is full: the plan's outputs did not fit (%.0f MB free "
+                    "once they were removed; a 150-175 mm part needs 15-30 MB)" % (where, free_mb),
+            "fix": "free space on that disk (finished jobs' folders in the outbox can go) or "
+                   "set outbox_dir to a larger disk, then `hostd requeue` the job"}
+
+
 def child_main(argv):
     args = json.loads(argv[0])
     _die_with_parent(args.get("parent_pid"))
@@ -146,6 +165,10 @@ def child_main(argv):
         result = {"ok": False, "code": "plan.memory_limit",
                   "text": "planning ran out of memory (limit %s MB)" % args.get("memory_mb"),
                   "fix": "raise planning.memory_mb in hostd.yaml or use a smaller input"}
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        result = _disk_full(outdir)
     atomic_write(outdir / "result.json", json_text(result))
     return 0 if result["ok"] else 2
 

@@ -1,6 +1,7 @@
 """systemd units: required hardening and notify settings; systemd-analyze verify if present."""
 
 import configparser
+import json
 import os
 import shutil
 import subprocess
@@ -113,6 +114,28 @@ def test_a_plan_dies_with_the_daemon_that_started_it(tmp_path):
     finally:
         if _alive(plan_pid):
             os.kill(plan_pid, signal.SIGKILL)
+
+
+def test_a_full_disk_fails_the_plan_with_its_own_code_and_frees_the_partial_outputs(tmp_path):
+    # The planner as a child would run it, with the disk filling up while it writes.
+    outdir = tmp_path / "outbox" / ".cache" / ".tmp-j1"
+    outdir.mkdir(parents=True)
+    child = ("import errno, sys\n"
+             "from pathlib import Path\n"
+             "from hostd import planner, planning\n"
+             "def full(path, profile, outdir):\n"
+             "    (Path(outdir) / 'dome.gcode').write_bytes(b'G1 X1\\n' * 1000)\n"
+             "    raise OSError(errno.ENOSPC, 'No space left on device')\n"
+             "planner.run = full\n"
+             "sys.exit(planning.child_main(sys.argv[1:]))\n")
+    args = json.dumps({"input": "dome.npy", "profile": "generic-0.5mm", "outdir": str(outdir)})
+    r = subprocess.run([sys.executable, "-c", child, args], cwd=ROOT, capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 2, r.stderr
+    result = json.loads((outdir / "result.json").read_text())
+    assert result["code"] == "plan.disk_full" and not result["ok"]
+    assert str(tmp_path / "outbox") in result["text"] and "outbox_dir" in result["fix"]
+    assert sorted(p.name for p in outdir.iterdir()) == ["result.json"]
 
 
 def test_a_plan_marked_not_printable_fails_its_job_with_the_reasons():
