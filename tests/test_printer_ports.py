@@ -1,13 +1,15 @@
 """Port kinds: ``sim://`` in process, and ``socket://`` to a ser2net-style bridge."""
 
+import errno
 import os
 import select
 import socket
 import threading
 
+import pytest
 import serial
 
-from hostd.printer import LinkSettings, Printer
+from hostd.printer import LinkSettings, Printer, PrinterError, transport
 from hostd.printer.sim import Simulator
 from hostd.printer.simconfig import SimConfig
 
@@ -105,3 +107,16 @@ def test_reader_reports_a_port_closed_under_its_read():
     assert not reader.is_alive()
     kind, generation, reason = inbox.get_nowait()
     assert (kind, generation) == ("lost", 7) and "port lost" in reason
+
+
+def test_a_port_this_user_may_not_open_says_how_to_get_access(monkeypatch):
+    def refuse(url, **kwargs):  # what pyserial raises for a port of group dialout
+        raise serial.SerialException(errno.EACCES, "could not open port %s: [Errno 13] "
+                                     "Permission denied: %r" % (url, url))
+
+    monkeypatch.setattr(serial, "serial_for_url", refuse)
+    with pytest.raises(PrinterError) as info:
+        transport.open_port("/dev/ttyACM0", 115200)
+    assert info.value.code == "port"
+    assert "cannot open /dev/ttyACM0" in info.value.message
+    assert "usermod -aG dialout" in info.value.message

@@ -5,6 +5,7 @@ Ports: device paths (``/dev/ttyUSB0``, ``/dev/serial/by-id/..``), pyserial URLs
 ``sim://?options`` for the built-in simulator (see :mod:`hostd.printer.simconfig`).
 """
 
+import errno
 import threading
 import time
 
@@ -27,8 +28,20 @@ def open_port(url, baud, simulator=None):
         port = serial.serial_for_url(target, baudrate=baud, timeout=READ_TIMEOUT_S,
                                      write_timeout=WRITE_TIMEOUT_S)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise PrinterError("port", "cannot open %s: %s" % (url, exc)) from exc
+        raise PrinterError("port", "cannot open %s: %s%s" % (url, exc, _open_fix(exc))) from exc
     return port
+
+
+def _open_fix(exc):
+    """What to do about the usual reasons a printer's port does not open."""
+    code = getattr(exc, "errno", None)
+    if code == errno.EACCES or "Permission denied" in str(exc):
+        return (". Fix: serial ports belong to the group dialout: add this user to it "
+                "(sudo usermod -aG dialout $USER, then log in again); the systemd unit does "
+                "this with SupplementaryGroups=dialout")
+    if code == errno.EBUSY or "Device or resource busy" in str(exc):
+        return ". Fix: another program holds the port (OctoPrint, a slicer, ModemManager): stop it"
+    return ""
 
 
 def close_port(port):
