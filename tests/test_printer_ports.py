@@ -120,3 +120,20 @@ def test_a_port_this_user_may_not_open_says_how_to_get_access(monkeypatch):
     assert info.value.code == "port"
     assert "cannot open /dev/ttyACM0" in info.value.message
     assert "usermod -aG dialout" in info.value.message
+
+
+def test_a_port_is_held_exclusively():
+    sim = Simulator(SimConfig(boot_s=0.0), baud=250000)
+    sim.start()
+    try:
+        path = sim.wait_port()
+        first = transport.open_port(path, 250000)
+        try:
+            with pytest.raises(PrinterError) as info:
+                transport.open_port(path, 250000)
+            assert "another program holds the port" in info.value.message
+        finally:
+            transport.close_port(first)
+        transport.close_port(transport.open_port(path, 250000))   # free again once closed
+    finally:
+        sim.stop()

@@ -24,9 +24,12 @@ def open_port(url, baud, simulator=None):
     target = url
     if url.startswith("sim://"):
         target = simulator.wait_port()
+    # A device is held exclusively (flock), so a second program, or a second printer
+    # entry naming the same port, is refused instead of mixing its lines into ours.
+    exclusive = "://" not in target or None
     try:
         port = serial.serial_for_url(target, baudrate=baud, timeout=READ_TIMEOUT_S,
-                                     write_timeout=WRITE_TIMEOUT_S)
+                                     write_timeout=WRITE_TIMEOUT_S, exclusive=exclusive)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise PrinterError("port", "cannot open %s: %s%s" % (url, exc, _open_fix(exc))) from exc
     return port
@@ -39,8 +42,9 @@ def _open_fix(exc):
         return (". Fix: serial ports belong to the group dialout: add this user to it "
                 "(sudo usermod -aG dialout $USER, then log in again); the systemd unit does "
                 "this with SupplementaryGroups=dialout")
-    if code == errno.EBUSY or "Device or resource busy" in str(exc):
-        return ". Fix: another program holds the port (OctoPrint, a slicer, ModemManager): stop it"
+    if code in (errno.EBUSY, errno.EAGAIN) or "busy" in str(exc) or "exclusively lock" in str(exc):
+        return (". Fix: another program holds the port (another hostd or printer entry, "
+                "OctoPrint, a slicer, ModemManager): stop it or give each printer its own port")
     return ""
 
 
