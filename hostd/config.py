@@ -139,9 +139,18 @@ def _printers(data, src):
     if not isinstance(data, list) or not data:
         raise HostdError("printers must be a non-empty list", code="config.type", file=src,
                          key="printers", fix="write `printers: [{name: p1, port: sim://}]`")
-    out, seen = [], set()
+    out, seen, ports = [], set(), {}
     for i, item in enumerate(data):
         p = _section(PrinterConfig, item, "printers[%d]" % i, src)
+        # Each sim:// is a printer of its own; a device (through any of its symlinks) is one.
+        device = None if "://" in p.port else os.path.realpath(p.port)
+        if device in ports:
+            raise HostdError("printers %r and %r use the same port %s" % (ports[device], p.name, p.port),
+                             code="config.value", file=src, key="printers[%d].port" % i,
+                             fix="give each printer its own port (/dev/serial/by-id/... names "
+                                 "stay put when USB devices are replugged)")
+        if device is not None:
+            ports[device] = p.name
         if not _NAME.match(p.name):
             raise HostdError("printer name %r is not a plain name" % p.name, code="config.value",
                              file=src, key="printers[%d].name" % i,

@@ -40,6 +40,8 @@ def test_file_merges_over_default_and_resolves_relative_to_itself(tmp_path):
     ("printers: [{name: a, port: sim://, speed: 3}]\n", "printers[0].speed", "config.unknown_key"),
     ("printers: [{port: sim://}]\n", "printers[0]", "config.missing"),
     ("printers: [{name: a}, {name: a}]\n", "printers[1].name", "config.value"),
+    ("printers: [{name: a, port: /dev/ttyACM0}, {name: b, port: /dev/ttyACM0}]\n",
+     "printers[1].port", "config.value"),
     ("printers: [{name: '../x'}]\n", "printers[0].name", "config.value"),
     ("printers: []\n", "printers", "config.type"),
 ])
@@ -51,6 +53,22 @@ def test_mistakes_name_the_key_and_the_file(tmp_path, text, key, code):
     assert err.value.code == code
     assert err.value.key == key
     assert str(cfg) in err.value.text() and key in err.value.text()
+
+
+def test_one_device_under_two_names_is_one_port(tmp_path):
+    device = tmp_path / "ttyACM0"
+    device.touch()
+    (tmp_path / "by-id").mkdir()
+    (tmp_path / "by-id" / "usb-Prusa_MK3").symlink_to(device)
+    cfg = tmp_path / "hostd.yaml"
+    cfg.write_text("printers: [{name: a, port: %s}, {name: b, port: %s}]\n"
+                   % (device, tmp_path / "by-id" / "usb-Prusa_MK3"))
+    with pytest.raises(HostdError) as err:
+        load_config(cfg)
+    assert err.value.key == "printers[1].port" and "the same port" in err.value.text()
+    # Simulated printers are each their own.
+    cfg.write_text("printers: [{name: a, port: 'sim://'}, {name: b, port: 'sim://'}]\n")
+    assert len(load_config(cfg).printers) == 2
 
 
 def test_unreadable_and_broken_yaml(tmp_path):
