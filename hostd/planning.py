@@ -135,10 +135,13 @@ def _disk_full(outdir):
         if path.is_file():
             path.unlink()
     free_mb = shutil.disk_usage(outdir).free / 1e6
-    where = Path(outdir).parent.parent   # outbox/.cache/<staging>/ -> the outbox
+    mount = Path(outdir).resolve()
+    while not os.path.ismount(mount) and mount != mount.parent:
+        mount = mount.parent
     return {"ok": False, "code": "plan.disk_full",
-            "text": "the disk holding %s is full: the plan's outputs did not fit (%.0f MB free "
-                    "once they were removed; a 150-175 mm part needs 15-30 MB)" % (where, free_mb),
+            "text": "the disk mounted at %s, which holds the outbox, is full: the plan's outputs "
+                    "did not fit (%.0f MB free once they were removed; a 150-175 mm part needs "
+                    "15-30 MB)" % (mount, free_mb),
             "fix": "free space on that disk (finished jobs' folders in the outbox can go) or "
                    "set outbox_dir to a larger disk, then `hostd requeue` the job"}
 

@@ -42,7 +42,7 @@ def _open_fix(exc):
         return (". Fix: serial ports belong to the group dialout: add this user to it "
                 "(sudo usermod -aG dialout $USER, then log in again); the systemd unit does "
                 "this with SupplementaryGroups=dialout")
-    if code in (errno.EBUSY, errno.EAGAIN) or "busy" in str(exc) or "exclusively lock" in str(exc):
+    if code in (errno.EBUSY, errno.EAGAIN) or "exclusively lock" in str(exc):
         return (". Fix: another program holds the port (another hostd or printer entry, "
                 "OctoPrint, a slicer, ModemManager): stop it or give each printer its own port")
     return ""
