@@ -38,7 +38,7 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
     # Spacing: from points on each path to the nearest point of another path.
     samples, label = [], []
     for c, (p, _) in enumerate(raw):
-        q = densify(p, pw / 4)
+        q = _densify(p, pw / 4)
         samples.append(q)
         label.append(np.full(len(q), c))
     samples = np.concatenate(samples)
@@ -110,7 +110,7 @@ def _weighted_percentiles(x, w, q):
     return [float(v) for v in x[order][idx]]
 
 
-def densify(points, step):
+def _densify(points, step):
     """Points along a polyline at most ``step`` apart: (q, 2)."""
     d = np.diff(points, axis=0)
     n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / step).astype(int), 1)
