@@ -208,6 +208,29 @@ def test_link_reconnects_by_itself_when_the_port_returns():
         assert "connected" in seen
 
 
+def test_close_while_the_board_boots_ends_the_connect_at_once():
+    # A board that takes 20 s to boot: close() must not wait for it (it joins the
+    # driver thread for at most 5 s, then leaves it behind).
+    from hostd.printer import Printer
+    printer = Printer("sim://?boot_s=20&time_scale=0", LinkSettings(baud=250000))
+    outcome = []
+
+    def connect():
+        try:
+            printer.connect()
+        except PrinterError as exc:
+            outcome.append(exc)
+
+    caller = threading.Thread(target=connect)
+    caller.start()
+    wait_for(lambda: printer.state == "connecting", what="connecting")
+    time.sleep(0.3)                       # in the handshake, waiting for the banner
+    printer.close()
+    caller.join(10)
+    assert not printer._thread.is_alive(), "close() left the driver in its handshake"
+    assert outcome and "closed while connecting" in str(outcome[0])
+
+
 def test_thermal_runaway_stops_the_job_and_is_reported_verbatim():
     lines = ["M104 S200"] + moves(600)
     with sim_and_printer(advanced_ok=True, time_scale=0, fault_runaway_line=200) as (sim, printer):

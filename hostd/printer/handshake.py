@@ -40,6 +40,8 @@ class _Session:
                 return None
             if item[0] == "call":
                 self.deferred.append(item)
+                if item[1] == "close":   # closing while the board boots: stop waiting for it
+                    raise PrinterError("state", "closed while connecting")
                 continue
             if item[1] != self.link._generation:
                 continue
