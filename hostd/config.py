@@ -235,3 +235,18 @@ def load_config(path=None, **overrides):
         data = _read_yaml(path)
         config = parse_config(data, path, path.resolve().parent, defaults)
     return replace(config, **overrides) if overrides else config
+
+
+def check_profiles(config):
+    """Every printer's profile loads: a misspelt or broken profile is a configuration
+    error when the daemon starts, not a printer that keeps failing to connect."""
+    from pipeline.errors import PipelineError
+    from pipeline.profile import load_profile
+    for i, p in enumerate(config.printers):
+        try:
+            load_profile(p.profile)
+        except PipelineError as exc:
+            where = "profile %s: " % exc.file if exc.file else ""
+            raise HostdError("printer %r: %s%s" % (p.name, where, exc.message), code="config.profile",
+                             file=config.source, key="printers[%d].profile" % i,
+                             fix=exc.fix) from None

@@ -1,8 +1,11 @@
 """hostd.yaml: the embedded default works, overrides merge, mistakes name key and file."""
 
+import subprocess
+import sys
+
 import pytest
 
-from hostd.config import load_config
+from hostd.config import check_profiles, load_config
 from hostd.errors import HostdError
 
 
@@ -69,6 +72,28 @@ def test_one_device_under_two_names_is_one_port(tmp_path):
     # Simulated printers are each their own.
     cfg.write_text("printers: [{name: a, port: 'sim://'}, {name: b, port: 'sim://'}]\n")
     assert len(load_config(cfg).printers) == 2
+
+
+def test_a_printer_whose_profile_does_not_load_is_a_config_error(tmp_path):
+    broken = tmp_path / "mine.yaml"
+    broken.write_text("name: mine\n")
+    for profile, says in (("prusa-mk3s", "no profile named 'prusa-mk3s'"),
+                          (str(broken), "profile %s: missing required key" % broken)):
+        cfg = tmp_path / "hostd.yaml"
+        cfg.write_text("printers: [{name: p1, port: 'sim://'}, {name: left, port: 'sim://', "
+                       "profile: '%s'}]\n" % profile)
+        config = load_config(cfg)
+        with pytest.raises(HostdError) as err:
+            check_profiles(config)
+        assert err.value.code == "config.profile" and err.value.key == "printers[1].profile"
+        assert "printer 'left'" in err.value.text() and says in err.value.text()
+        assert str(cfg) in err.value.text()
+    # and `hostd run` refuses to start on it, before touching any folder
+    r = subprocess.run([sys.executable, "-m", "hostd", "run", "--config", str(cfg)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "config.profile" in r.stderr
+    assert not (tmp_path / "hostd-data").exists()
+    check_profiles(load_config())       # the embedded default's profile loads
 
 
 def test_unreadable_and_broken_yaml(tmp_path):

@@ -22,11 +22,12 @@ def run(args):
     import logging
 
     from hostd import daemon, logs
-    from hostd.config import load_config
+    from hostd.config import check_profiles, load_config
     logs.setup(logging.DEBUG if args.verbose else logging.INFO)
     try:
         overrides = {"node_id": args.node_id} if args.node_id else {}
         config = load_config(args.config, **overrides)
+        check_profiles(config)
         if args.check:
             print("config OK: %s" % (config.source or "embedded default"))
             for key in ("node_id", "drop_dir", "state_dir", "outbox_dir", "done_dir", "failed_dir"):
