@@ -413,8 +413,9 @@ class Daemon(ControlMixin):
                     last_line=snap["last_confirmed_line"], input_path=str(dest),
                     sidecar_path=str(side) if side else None)
             elif snap["result"] == "cancelled":
-                self._to_failed(job, "The print of %s was cancelled by a person (hostd cancel)."
-                                % job["name"], state=J.CANCELLED)
+                self._to_failed(job, "The print of %s was %s." % (
+                    job["name"], snap["error"] or "cancelled by a person (hostd cancel)"),
+                    state=J.CANCELLED)
             else:
                 self._fail(job, "The printer %s stopped the print: %s. Check the printer, "
                                 "then `hostd requeue %s`." % (slot.name, snap["error"] or

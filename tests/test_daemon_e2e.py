@@ -215,6 +215,24 @@ def test_two_daemons_share_one_drop_folder(tmp_path, dome):
 
 
 @pytest.mark.slow
+def test_stop_print_on_the_printer_cancels_the_job(tmp_path, dome, pty_sim):
+    sim, port = pty_sim
+    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+                                            "port": port, "baud": 115200}])
+    with daemon(cfg) as d:
+        drop(dome, tmp_path / "share" / "drop", "dome.npy")
+        wait_for(lambda: states(cfg).get("dome.npy") == "printing", timeout=60, proc=d,
+                 what="printing")
+        sim.press("cancel")      # Marlin's "Stop print" on a host's print
+        wait_for(lambda: states(cfg).get("dome.npy") == "cancelled", timeout=60, proc=d,
+                 what="cancelled")
+        assert d.stop() == 0
+    reason = (tmp_path / "share" / "failed" / "dome.error.txt").read_text()
+    assert "cancelled on the printer" in reason
+    assert (tmp_path / "share" / "failed" / "dome.npy").read_bytes() == dome.read_bytes()
+
+
+@pytest.mark.slow
 def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pty_sim):
     from hostd.printer.settings import script_lines
     from pipeline.profile import load_profile

@@ -151,6 +151,57 @@ def test_cancel_runs_the_cancel_gcode():
         assert executed == lines[:sent] + cancel
 
 
+def test_cancel_on_the_printer_cancels_the_job():
+    # Marlin's "Stop print" on a host print only sends //action:cancel.
+    lines = moves(400, feed_mm_min=600)
+    with sim_and_printer(advanced_ok=True, time_scale=0.25) as (sim, printer):
+        events = printer.subscribe()
+        printer.start(lines)
+        wait_for(lambda: printer.progress()["confirmed"] >= 30, what="30 lines")
+        sim.press("cancel")
+        result = printer.wait(30)
+        assert result["result"] == "cancelled" and result["error"] == "cancelled on the printer"
+        sent = result["sent"]
+        assert sent < len(lines)
+        assert job_commands(sim) == lines[:sent] + script(DEFAULT_CANCEL_GCODE)
+        seen = []
+        while not events.empty():
+            seen.append(events.get())
+        assert any(e.kind == "action" and e.data["action"] == "cancel" for e in seen)
+
+
+def test_pause_on_the_printer_pauses_and_resume_continues():
+    lines = moves(300, feed_mm_min=600)
+    with sim_and_printer(advanced_ok=True, time_scale=0.15) as (sim, printer):
+        printer.start(lines)
+        wait_for(lambda: printer.progress()["confirmed"] >= 50, what="50 lines")
+        sim.press("pause")
+        wait_for(lambda: printer.state == "paused", what="paused from the printer")
+        k = printer.progress()["sent"]
+        assert job_commands(sim) == lines[:k] + script(DEFAULT_PAUSE_GCODE)
+        sim.press("resume")
+        assert printer.wait(60)["result"] == "done"
+        assert job_commands(sim) == (lines[:k] + script(DEFAULT_PAUSE_GCODE)
+                                     + script(DEFAULT_RESUME_GCODE) + lines[k:])
+
+
+def test_firmware_that_paused_itself_gets_no_park_script():
+    # //action:paused: the firmware parked on its own (a filament change); the host
+    # stops feeding, sends nothing of its own, and goes on at //action:resumed.
+    lines = moves(300, feed_mm_min=600)
+    with sim_and_printer(advanced_ok=True, time_scale=0.15) as (sim, printer):
+        printer.start(lines)
+        wait_for(lambda: printer.progress()["confirmed"] >= 50, what="50 lines")
+        sim.press("paused")
+        wait_for(lambda: printer.state == "paused", what="paused by the firmware")
+        k = printer.progress()["sent"]
+        time.sleep(0.2)
+        assert printer.progress()["sent"] == k and job_commands(sim) == lines[:k]
+        sim.press("resumed")
+        assert printer.wait(60)["result"] == "done"
+        assert job_commands(sim) == lines
+
+
 def test_emergency_stop_reaches_firmware_quickly_with_full_queue(record_property):
     lines = ["G1 X%d F600" % (10 * (i % 2)) for i in range(200)]   # 1 s per move
     with sim_and_printer(baud=115200, advanced_ok=True, time_scale=1.0) as (sim, printer):

@@ -45,6 +45,15 @@ def test_parse_reply_kinds(raw, kind, line, planner, buffer):
     assert (reply.kind, reply.line, reply.planner_free, reply.buffer_free) == (kind, line, planner, buffer)
 
 
+def test_host_action_commands():
+    for raw, name in ((b"//action:cancel", "cancel"), (b"// action:pause", "pause"),
+                      (b"//action:paused filament_runout 1", "paused"),
+                      (b"//action:prompt_begin Filament Runout", "prompt_begin")):
+        reply = protocol.parse_reply(raw)
+        assert (reply.kind, reply.action) == ("action", name), raw
+    assert protocol.parse_reply(b"echo://action:cancel").kind != "action"
+
+
 def test_errors_are_kept_verbatim_and_classified():
     runaway = protocol.parse_reply(b"Error:Thermal Runaway, system stopped! Heater_ID: 0")
     assert runaway.kind == "error" and runaway.text == "Error:Thermal Runaway, system stopped! Heater_ID: 0"

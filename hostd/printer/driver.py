@@ -373,11 +373,39 @@ class Driver(Publisher):
         elif kind == protocol.START:
             if self._state not in (CONNECTING, ERROR_STATE):
                 raise _PortLost("printer reset unexpectedly (got 'start')")
+        elif kind == protocol.ACTION:
+            self._on_action(reply)
         elif kind in (protocol.ECHO, protocol.OTHER, protocol.FIRMWARE):
             if protocol.is_fragment_echo(reply.text) and not self.capabilities.get("ADVANCED_OK"):
                 self._flow.expect_foreign_ok()   # (with ADVANCED_OK its ok lacks N: on_ok knows)
             self._emit("log", text=reply.text)
         # BUSY: a sign of life only (it resets the answer timeout above).
+
+    def _on_action(self, reply):
+        """The printer's own controls (``//action:``): do what its user asked.
+
+        Marlin leaves a host's print to the host: cancelling or pausing it on the
+        printer's screen only sends ``//action:cancel`` or ``pause``, so without this
+        the print would go on. ``paused``/``resumed`` say the firmware did it itself
+        (a filament change): the feed stops or goes on, without our scripts.
+        """
+        name = reply.action
+        self._emit("action", action=name, text=reply.text)
+        job = self.job
+        if job is None or job.result is not None:
+            return
+        if name in ("cancel", "abort"):
+            job.cancelled_by = "on the printer"
+            self._do_cancel()
+        elif name == "pause":
+            self._do_pause()
+        elif name == "resume":
+            self._do_resume()
+        elif name == "paused" and job.phase == PRINTING:
+            job.phase = PAUSING          # PAUSED once everything sent is answered
+        elif name == "resumed" and job.phase in (PAUSING, PAUSED):
+            job.phase = PRINTING
+            self._set_state(PRINTING)
 
     def _confirm(self, sent):
         job = self.job
@@ -494,7 +522,7 @@ class Driver(Publisher):
                 self._set_state(PAUSED)
             elif job.phase == CANCELLING and settled:
                 self._set_state(IDLE)
-                self._finish_job(CANCELLED)
+                self._finish_job(CANCELLED, job.cancelled_by and "cancelled " + job.cancelled_by)
             elif job.phase == PRINTING and self._state in (PRINTING, HEATING):
                 head = self._flow.head_command()[:4]
                 self._set_state(HEATING if head in _BLOCKING_HEAT else PRINTING)

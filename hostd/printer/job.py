@@ -68,6 +68,7 @@ class Job:
         self.phase = PRINTING
         self.result = None
         self.error = None
+        self.cancelled_by = None      # who cancelled, when not the host's own caller
         self.interrupted = False
         self.sent = 0                 # file commands handed to the link (first time)
         self.confirmed = 0            # file commands acknowledged by the firmware

@@ -11,6 +11,9 @@ before ``*``. Replies we care about:
 - ``echo:busy: processing`` / ``wait`` (signs of life, *not* an ok)
 - ``start`` (the board has just reset), ``FIRMWARE_NAME:..``, ``Cap:NAME:0|1``
 - `` T:25.00 /0.00 B:24.90 /60.00 @:0 B@:0`` (temperature report, M105 or M155)
+- ``//action:cancel`` (host action commands: the printer's own controls asking the
+  host to ``cancel``, ``pause`` or ``resume``, or saying it ``paused``/``resumed`` itself;
+  Prusa firmware writes ``// action:``)
 """
 
 import re
@@ -26,6 +29,7 @@ TEMPS = "temps"
 CAP = "cap"
 FIRMWARE = "firmware"
 ECHO = "echo"
+ACTION = "action"
 OTHER = "other"
 
 _TEMP_RE = re.compile(r"(?<![A-Za-z@])([TBC]\d*)\s*:\s*(-?\d+(?:\.\d*)?)\s*(?:/\s*(-?\d+(?:\.\d*)?))?")
@@ -33,6 +37,7 @@ _TEMP_RE = re.compile(r"(?<![A-Za-z@])([TBC]\d*)\s*:\s*(-?\d+(?:\.\d*)?)\s*(?:/\
 _RESEND_RE = re.compile(r"(?:resend:|^rs[:\s])\s*N?\s*:?\s*(\d+)", re.IGNORECASE)
 _OK_FIELD_RE = re.compile(r"\b([NPB])(\d+)\b")
 _CAP_RE = re.compile(r"^Cap:([A-Z0-9_]+):\s*([01])")
+_ACTION_RE = re.compile(r"^//\s*action:\s*(\w+)", re.IGNORECASE)
 
 # Error messages from Marlin that are followed by a resend request (not fatal).
 _RESEND_ERROR_WORDS = ("checksum", "line number", "last line", "expected line", "format error")
@@ -98,6 +103,7 @@ class Reply:
     buffer_free: int = None    # ok .. B..
     temps: dict = field(default_factory=dict)  # heater -> (current, target or None)
     cap: tuple = None          # (name, enabled) for Cap: lines
+    action: str = None         # the name of a //action: line, lower case
 
 
 def parse_temperatures(text):
@@ -162,6 +168,9 @@ def parse_reply(raw):
         return Reply(BUSY, text)
     if low == "start":
         return Reply(START, text)
+    match = _ACTION_RE.match(text)
+    if match:
+        return Reply(ACTION, text, action=match.group(1).lower())
     match = _CAP_RE.match(text)
     if match:
         return Reply(CAP, text, cap=(match.group(1), match.group(2) == "1"))

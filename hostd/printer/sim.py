@@ -16,6 +16,7 @@ Use::
     sim.stop()
 """
 
+import queue
 import random
 import threading
 import time
@@ -46,6 +47,7 @@ class Simulator:
         self.bytes_in = 0
         self.bytes_out = 0
         self._stop = threading.Event()
+        self._pressed = queue.SimpleQueue()   # actions from the printer's own controls
         self._thread = None
         self._ready = threading.Event()
         self._host = False
@@ -94,6 +96,11 @@ class Simulator:
     def __exit__(self, *exc):
         self.stop()
 
+    def press(self, action):
+        """The printer's own controls: Marlin tells the host ``//action:<action>``
+        (``cancel``, ``pause``, ``resume``; ``paused``/``resumed`` when it paused itself)."""
+        self._pressed.put(action)
+
     def wait_port(self, timeout_s=5.0):
         """Block until the port exists (after a simulated disconnect)."""
         deadline = time.monotonic() + timeout_s
@@ -115,6 +122,8 @@ class Simulator:
 
     def _cycle(self):
         now = self.clock()
+        while not self._pressed.empty():
+            self.firmware.out.append("//action:" + self._pressed.get())
         if self.endpoint.master is None:
             if now >= self._reopen_at:
                 self.endpoint.open()
