@@ -1,5 +1,6 @@
 """`hostd run` end to end: real files, real processes, the simulator on a pty."""
 
+import contextlib
 import os
 import shutil
 import signal
@@ -214,15 +215,25 @@ def test_two_daemons_share_one_drop_folder(tmp_path, dome):
     assert nodes == {"a", "b"}
 
 
-@pytest.mark.slow
-def test_stop_print_on_the_printer_cancels_the_job(tmp_path, dome, pty_sim):
-    sim, port = pty_sim
+@contextlib.contextmanager
+def printing_dome(tmp_path, dome, port):
+    """A daemon whose one printer is on ``port`` (a simulator's pty), printing ``dome``.
+
+    Yields (config path, daemon process).
+    """
     cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
                                             "port": port, "baud": 115200}])
     with daemon(cfg) as d:
         drop(dome, tmp_path / "share" / "drop", "dome.npy")
         wait_for(lambda: states(cfg).get("dome.npy") == "printing", timeout=60, proc=d,
                  what="printing")
+        yield cfg, d
+
+
+@pytest.mark.slow
+def test_stop_print_on_the_printer_cancels_the_job(tmp_path, dome, pty_sim):
+    sim, port = pty_sim
+    with printing_dome(tmp_path, dome, port) as (cfg, d):
         sim.press("cancel")      # Marlin's "Stop print" on a host's print
         wait_for(lambda: states(cfg).get("dome.npy") == "cancelled", timeout=60, proc=d,
                  what="cancelled")
@@ -241,12 +252,7 @@ def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pt
     prof = load_profile("generic-0.5mm")
     park = script_lines(prof.render_gcode("pause"))
     unpark = script_lines(prof.render_gcode("resume"))
-    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
-                                            "port": port, "baud": 115200}])
-    with daemon(cfg) as d:
-        drop(dome, tmp_path / "share" / "drop", "dome.npy")
-        wait_for(lambda: states(cfg).get("dome.npy") == "printing", timeout=60, proc=d,
-                 what="printing")
+    with printing_dome(tmp_path, dome, port) as (cfg, d):
         r = hostd("pause", "p1", "-c", cfg)
         assert r.returncode == 0, r.stderr
         wait_for(lambda: job_commands(sim)[-len(park):] == park, timeout=30, proc=d,
