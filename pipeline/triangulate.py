@@ -156,10 +156,8 @@ def split_ring(cycle, he, run, swap=False):
     n = len(ring)
     s = offs[run[0]]
     e = (offs[run[-1] + 1]) % n  # the run's end vertex: first vertex of the next half-edge
-    idx = np.arange(n)
     chain_u = ring[np.mod(np.arange(s, s + ((e - s) % n) + 1), n)]
     rest = ring[np.mod(np.arange(e + 1, e + 1 + (n - ((e - s) % n) - 1)), n)]
-    del idx
     if swap:
         # The run is the lower chain; the rest (one apex) is the upper.
         return chain_u, rest[::-1]
@@ -180,8 +178,7 @@ def trace_faces(xy, he):
     counts = np.bincount(frm, minlength=len(xy))
     start = np.concatenate([[0], np.cumsum(counts)[:-1]])
     pos[order] = np.arange(n) - start[frm[order]]
-    tw = twin
-    nxt = order[start[to] + np.mod(pos[tw] - 1, counts[to])]
+    nxt = order[start[to] + np.mod(pos[twin] - 1, counts[to])]
     seen = np.zeros(n, bool)
     faces = []
     for h0 in range(n):
