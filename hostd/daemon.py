@@ -19,78 +19,21 @@ import threading
 import time
 from pathlib import Path, PurePosixPath
 
-from hostd import farm as farm_mod
 from hostd import jobs as J
 from hostd.control import ControlMixin
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
 from hostd.lock import DaemonLock
 from hostd.notify import Notifier
 from hostd.planning import PlanProcess
-from hostd.watcher import INPUT_SUFFIXES, Watcher, name_problem
+from hostd.recovery import RecoveryMixin
+from hostd.slot import Slot
+from hostd.watcher import Watcher, name_problem
 
 log = logging.getLogger("hostd.daemon")
 TICK_S = 0.05
 
 
-def link_settings(printer_config):
-    """The link's settings for one printer: its baud and its profile's scripts, so a
-    pause parks, a resume unparks and a cancel runs this printer's own cancel G-code."""
-    from hostd.printer import LinkSettings
-    from pipeline.profile import load_profile
-
-    profile = load_profile(printer_config.profile)
-    return LinkSettings(baud=printer_config.baud,
-                        pause_gcode=profile.render_gcode("pause"),
-                        resume_gcode=profile.render_gcode("resume"),
-                        cancel_gcode=profile.render_gcode("cancel"))
-
-
-class Slot:
-    """One configured printer: its link (connected in the background) and current job."""
-
-    def __init__(self, config):
-        self.config = config
-        self.name = config.name
-        self.printer = None
-        self.job_id = None           # store id of the job printing here
-        self.link_job = None         # hostd.printer.job.Job
-        self.paused = False          # operator pause: no new jobs
-        self.error = None
-        self._thread = None
-
-    def connect_async(self):
-        if self._thread is not None and self._thread.is_alive():
-            return
-        self._thread = threading.Thread(target=self._connect, name="connect-" + self.name,
-                                        daemon=True)
-        self._thread.start()
-
-    def _connect(self):
-        from hostd.printer import Printer, PrinterError
-        from pipeline.errors import PipelineError
-        try:
-            if self.printer is None:
-                self.printer = Printer(self.config.port, link_settings(self.config))
-            self.printer.connect()
-            self.error = None
-            log.info("printer %s connected (%s)", self.name, self.config.port)
-        except (PrinterError, PipelineError, OSError) as exc:
-            self.error = str(exc)
-            log.warning("printer %s: cannot connect: %s", self.name, exc)
-
-    @property
-    def state(self):
-        return self.printer.state if self.printer is not None else "disconnected"
-
-    def available(self):
-        return self.job_id is None and not self.paused and self.state == "idle"
-
-    def close(self):
-        if self.printer is not None:
-            self.printer.close()
-
-
-class Daemon(ControlMixin):
+class Daemon(ControlMixin, RecoveryMixin):
     def __init__(self, config, notifier=None):
         self.config = config
         self.notify = notifier or Notifier()
@@ -107,6 +50,9 @@ class Daemon(ControlMixin):
         self._next_reconnect = 0.0
         self._profile_hashes = {}
         self._skipped = set()
+        self._full = None            # the jobs.disk_full error while the store cannot grow
+        self._full_at = 0.0          # when a write last failed for it
+        self._full_retry = 0.0
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -149,13 +95,23 @@ class Daemon(ControlMixin):
 
     def tick(self):
         now = time.monotonic()
-        self._control()
-        for cand in self.watcher.poll(now):
-            self._intake(cand)
-        self._reap_plans()
-        self._start_plans()
-        self._follow_prints()
-        self._dispatch()
+        # A full job database stops everything that starts work (a claimed file must be
+        # recorded, a started plan or print too), never the prints already running.
+        writable = self._may_write(now)
+        with self._full_ok():
+            if writable:
+                self._control()
+                for cand in self.watcher.poll(now):
+                    self._intake(cand)
+                self._reap_plans()
+                self._start_plans()
+            self._follow_prints()
+            if writable:
+                self._dispatch()
+            if writable and self._full is not None and self._full_at < now:
+                self._resync()
+                self._full = None
+                log.info("the job database takes writes again; carrying on")
         if now >= self._next_beat:
             self._next_beat = now + min(self.config.heartbeat_s, self.notify.watchdog_s or 1e9)
             self._heartbeat()
@@ -164,10 +120,12 @@ class Daemon(ControlMixin):
         self.notify.stopping("stopping")
         log.info("stopping")
         deadline = time.monotonic() + max(1.0, self.config.stop_timeout_s - 3.0)
+        # With the job database full, the next start records what is left unrecorded here.
         for job_id, proc in list(self.plans.items()):
             proc.kill()
-            self.store.set_state(job_id, J.QUEUED, "daemon stopped while planning: will plan "
-                                                   "again on the next start")
+            with self._full_ok():
+                self.store.set_state(job_id, J.QUEUED, "daemon stopped while planning: will "
+                                                       "plan again on the next start")
         self.plans.clear()
         for slot in self.slots:
             if slot.job_id is not None and slot.link_job is not None:
@@ -179,48 +137,19 @@ class Daemon(ControlMixin):
             if slot.job_id is not None:
                 if slot.link_job is not None:
                     slot.link_job.wait(max(0.1, deadline - time.monotonic()))
-                self._interrupt(slot, "the daemon was stopped during the print")
+                if self._full is None:
+                    with self._full_ok():
+                        self._interrupt(slot, "the daemon was stopped during the print")
         self.watcher.stop()
         if self.web is not None:
             self.web.stop()
         for slot in self.slots:
             slot.close()
-            self.store.set_printer(slot.name, state="stopped", job_id=None)
+            with self._full_ok():
+                self.store.set_printer(slot.name, state="stopped", job_id=None)
         self._heartbeat(state="stopped")
         self.store.close()
         self.lock.release()
-
-    # -- recovery -----------------------------------------------------------------------------
-
-    def _recover(self):
-        for job_id in self.store.recover():
-            job = self.store.get(job_id)
-            if job["state"] == J.QUEUED:
-                log.warning("job %s: %s was being planned when hostd stopped; planning it again",
-                            job_id, job["rel_path"])
-            if job["state"] == J.INTERRUPTED:
-                log.warning("job %s: %s was printing when hostd stopped (last confirmed line %d); "
-                            "interrupted, the file is in failed/", job_id, job["rel_path"],
-                            job["last_line"])
-                self._to_failed(job, "The print of %s was interrupted: the daemon stopped or "
-                                     "crashed while printing (last confirmed line %d). Check "
-                                     "the printer and the bed, then print it again with "
-                                     "`hostd requeue %s`." % (job["name"], job["last_line"],
-                                                             job_id))
-        for job in self.store.list([J.QUEUED, J.READY]):
-            if not os.path.exists(job["input_path"]):
-                self.store.set_state(job["id"], J.CANCELLED, "input is gone from the claim "
-                                     "folder (released to other nodes while this node was away)")
-            elif job["state"] == J.READY and not self._gcode(job):
-                self.store.set_state(job["id"], J.QUEUED, "outputs missing: planning again")
-        known = {j["input_path"] for j in self.store.list(J.ACTIVE)}
-        # Claimed before the crash but never recorded: adopt.
-        for path in sorted(self.farm.claim_dir.glob("*/*")):
-            if path.suffix.lower() in INPUT_SUFFIXES and str(path) not in known:
-                target = None if path.parent.name == farm_mod.ROOT_TARGET else path.parent.name
-                side = path.with_name(path.stem + ".yaml")
-                self._add_job(path.name, (target + "/" if target else "") + path.name, path,
-                              side if side.exists() else None, target)
 
     # -- intake ----------------------------------------------------------------------------------
 
@@ -293,6 +222,8 @@ class Daemon(ControlMixin):
         for job in self.store.next_in_order(J.QUEUED):
             if len(self.plans) >= self.config.planning.workers:
                 return
+            if job["id"] in self.plans:   # started while its state could not be recorded
+                continue
             try:
                 digest = job["input_hash"] or file_hash(job["input_path"])
                 key = plan_key(digest, job["sidecar_path"], self._profile_hash(job["profile"]),
@@ -363,7 +294,10 @@ class Daemon(ControlMixin):
             for slot in self.slots:
                 if slot.state in ("disconnected",) and slot.job_id is None:
                     slot.connect_async()
+        held = {s.job_id for s in self.slots}
         for job in self.store.next_in_order(J.READY):
+            if job["id"] in held:         # started while its state could not be recorded
+                continue
             for slot in self.slots:
                 if slot.available() and self._eligible(slot, job):
                     self._start_print(slot, job)
@@ -394,33 +328,38 @@ class Daemon(ControlMixin):
             if snap["result"] is None:
                 total = snap["total"] or 0
                 progress = snap["confirmed"] / total if total else 0.0
-                self.store.update(slot.job_id, progress=round(progress, 4),
-                                  last_line=snap["last_confirmed_line"])
+                with self._full_ok():   # the page shows live progress from the printer
+                    self.store.update(slot.job_id, progress=round(progress, 4),
+                                      last_line=snap["last_confirmed_line"])
                 continue
-            job = self.store.get(slot.job_id)
-            slot.job_id, slot.link_job = None, None
+            if slot.ending is None:
+                slot.ending = self._ending(slot, snap)
+            slot.ending()   # may find the store full: the slot keeps the job until it is recorded
+            slot.job_id = slot.link_job = slot.ending = None
             self.store.set_printer(slot.name, job_id=None)
-            if snap["result"] == "done":
-                copies = job["copies_done"] + 1
-                if copies < job["copies"]:
-                    self.store.set_state(job["id"], J.READY, "copy %d printed" % copies,
-                                         copies_done=copies, progress=1.0)
-                    continue
-                dest, side = archive_done(job["input_path"], job["sidecar_path"],
-                                          self.config.done_dir, job["name"])
-                self.store.set_state(job["id"], J.DONE, "printed on %s in %.0f s" % (
-                    slot.name, snap["seconds"]), copies_done=copies, progress=1.0,
-                    last_line=snap["last_confirmed_line"], input_path=str(dest),
-                    sidecar_path=str(side) if side else None)
-            elif snap["result"] == "cancelled":
-                self._to_failed(job, "The print of %s was %s." % (
-                    job["name"], snap["error"] or "cancelled by a person (hostd cancel)"),
-                    state=J.CANCELLED)
-            else:
-                self._fail(job, "The printer %s stopped the print: %s. Check the printer, "
-                                "then `hostd requeue %s`." % (slot.name, snap["error"] or
-                                                              slot.printer.last_error, job["id"]),
-                           "printer.error")
+
+    def _ending(self, slot, snap):
+        """File the input of a finished print; returns the call that records the outcome."""
+        job = self.store.get(slot.job_id)
+        if snap["result"] == "done":
+            copies = job["copies_done"] + 1
+            if copies < job["copies"]:
+                return lambda: self.store.set_state(job["id"], J.READY, "copy %d printed" % copies,
+                                                    copies_done=copies, progress=1.0)
+            dest, side = archive_done(job["input_path"], job["sidecar_path"],
+                                      self.config.done_dir, job["name"])
+            return lambda: self.store.set_state(
+                job["id"], J.DONE, "printed on %s in %.0f s" % (slot.name, snap["seconds"]),
+                copies_done=copies, progress=1.0, last_line=snap["last_confirmed_line"],
+                input_path=str(dest), sidecar_path=str(side) if side else None)
+        if snap["result"] == "cancelled":
+            return self._filing(job, "The print of %s was %s." % (
+                job["name"], snap["error"] or "cancelled by a person (hostd cancel)"),
+                state=J.CANCELLED)
+        return self._failing(job, "The printer %s stopped the print: %s. Check the printer, "
+                                  "then `hostd requeue %s`." % (slot.name, snap["error"] or
+                                                                slot.printer.last_error, job["id"]),
+                             "printer.error")
 
     def _interrupt(self, slot, reason):
         job = self.store.get(slot.job_id)
@@ -437,6 +376,9 @@ class Daemon(ControlMixin):
     # -- endings -----------------------------------------------------------------------------------
 
     def _fail(self, job, reason, code=None):
+        self._failing(job, reason, code)()
+
+    def _failing(self, job, reason, code=None):
         # People know the files by the names they dropped, not by their claimed paths.
         reason = reason.replace(str(job["input_path"]), job["rel_path"])
         if job["sidecar_path"]:
@@ -444,10 +386,14 @@ class Daemon(ControlMixin):
             reason = reason.replace(str(job["sidecar_path"]),
                                     str(dropped.with_name(dropped.stem + ".yaml")))
         log.warning("job %s failed: %s", job["id"], reason)
-        self._to_failed(job, reason, state=J.FAILED, code=code or "job.failed")
+        return self._filing(job, reason, state=J.FAILED, code=code or "job.failed")
 
     def _to_failed(self, job, reason, state=None, code=None):
         """Move the input to failed/ beside NAME.error.txt and record ``state``."""
+        self._filing(job, reason, state, code)()
+
+    def _filing(self, job, reason, state=None, code=None):
+        """The move of :meth:`_to_failed`; returns the call that records ``state``."""
         values = {}
         if os.path.exists(job["input_path"]) and Path(job["input_path"]).parent != \
                 Path(self.config.failed_dir):
@@ -456,12 +402,21 @@ class Daemon(ControlMixin):
             dest, side = archive_failed(job["input_path"], job["sidecar_path"],
                                         self.config.failed_dir, job["name"], text)
             values = dict(input_path=str(dest), sidecar_path=str(side) if side else None)
-        if state is not None and state != job["state"]:
-            self.store.set_state(job["id"], state, reason, error=reason, error_code=code, **values)
-        elif values:
-            self.store.update(job["id"], **values)
+
+        def record():
+            if state is not None and state != job["state"]:
+                self.store.set_state(job["id"], state, reason, error=reason, error_code=code,
+                                     **values)
+            elif values:
+                self.store.update(job["id"], **values)
+        return record
 
     # -- status -------------------------------------------------------------------------------------
+
+    @property
+    def problem(self):
+        """What keeps this node from taking work, for people (None: nothing)."""
+        return self._full.text() if self._full is not None else None
 
     def status(self, state="running"):
         printers = []
@@ -473,7 +428,8 @@ class Daemon(ControlMixin):
                                  "total"], 4) if snap and snap["total"] else None})
         queued = len(self.store.list([J.QUEUED, J.PLANNING, J.READY]))
         return {"state": state, "pid": os.getpid(), "printers": printers, "queue_length": queued,
-                "planning": sorted(self.plans), "web_url": self.web.url if self.web else None}
+                "planning": sorted(self.plans), "web_url": self.web.url if self.web else None,
+                "problem": self.problem}
 
     def _heartbeat(self, state="running"):
         try:
@@ -482,14 +438,17 @@ class Daemon(ControlMixin):
                 self.farm.release_dead()
             status = self.status(state)
             self.farm.publish_status(status)
-            for slot in self.slots:
-                self.store.set_printer(slot.name, state=slot.state)
         except OSError as exc:
             log.warning("cannot write to the share: %s", exc)
             return
+        with self._full_ok():
+            for slot in self.slots:
+                self.store.set_printer(slot.name, state=slot.state)
         busy = [s for s in status["printers"] if s["job"]]
-        self.notify.status("%d printing, %d queued, %d planning" % (
-            len(busy), status["queue_length"], len(status["planning"])))
+        self.notify.status("%d printing, %d queued, %d planning%s" % (
+            len(busy), status["queue_length"], len(status["planning"]),
+            "; job database full" if self._full is not None else ""))
+        # Alive and printing: a restart would not make room, only end the prints.
         self.notify.watchdog()
 
 

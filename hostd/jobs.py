@@ -6,13 +6,16 @@ the story. The ``control`` table is the terminal commands' door into a running
 daemon: the CLI inserts a request, the daemon carries it out and writes the result.
 """
 
+import contextlib
 import json
+import shutil
 import sqlite3
 import time
 import uuid
 from pathlib import Path
 
 from hostd.errors import HostdError
+from hostd.outputs import mount_point
 
 QUEUED, PLANNING, READY, PRINTING = "queued", "planning", "ready", "printing"
 DONE, FAILED, CANCELLED, INTERRUPTED = "done", "failed", "cancelled", "interrupted"
@@ -84,6 +87,7 @@ _FIELDS = ("name", "rel_path", "input_path", "sidecar_path", "input_hash", "targ
 
 
 _BUSY_TIMEOUT_S = 30.0
+DISK_FULL = "jobs.disk_full"
 
 
 def _retry_locked(call, timeout_s=_BUSY_TIMEOUT_S):
@@ -152,6 +156,37 @@ class JobStore:
     def close(self):
         self.db.close()
 
+    @contextlib.contextmanager
+    def _writing(self):
+        """Turn SQLite's "database or disk is full" (SQLITE_FULL, 13) into :data:`DISK_FULL`."""
+        try:
+            yield
+        except sqlite3.OperationalError as exc:
+            code = getattr(exc, "sqlite_errorcode", None)   # Python 3.11+
+            if not (code == 13 if code is not None else "disk is full" in str(exc)):
+                raise
+            where = self.path.parent
+            raise HostdError(
+                "cannot record jobs: SQLite reports the database or its disk full (the disk "
+                "mounted at %s has %.1f MB free)" % (mount_point(where),
+                                                     shutil.disk_usage(where).free / 1e6),
+                code=DISK_FULL, file=self.path,
+                fix="free space on that disk (old logs: `journalctl --vacuum-size=100M`; "
+                    "finished jobs' folders in the outbox); hostd goes on by itself once "
+                    "there is room") from exc
+
+    def probe(self):
+        """Raise :data:`DISK_FULL` unless the database can grow by a few pages now.
+
+        The row spans overflow pages and is gone again before the commit, so nobody sees it,
+        but the pages are allocated and written as for any growing write.
+        """
+        with self._writing(), self.db:
+            self.db.execute("BEGIN IMMEDIATE")
+            cur = self.db.execute("INSERT INTO control (at, action, target, done_at, ok, result) "
+                                  "VALUES (0, 'probe', '', 0, 1, ?)", ("." * 16384,))
+            self.db.execute("DELETE FROM control WHERE id = ?", (cur.lastrowid,))
+
     # -- jobs ------------------------------------------------------------------------------
 
     def add(self, name, rel_path, input_path, **values):
@@ -161,7 +196,7 @@ class JobStore:
         values = dict(values, name=name, rel_path=rel_path, input_path=str(input_path))
         values.setdefault("state", QUEUED)
         cols = ["id", "created_at", "updated_at", "seq"] + [k for k in values if k in _FIELDS]
-        with self.db:
+        with self._writing(), self.db:
             self.db.execute("BEGIN IMMEDIATE")
             seq = self.db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM jobs").fetchone()[0]
             row = [job_id, now, now, seq] + [values[k] for k in cols[4:]]
@@ -192,7 +227,7 @@ class JobStore:
             raise ValueError("unknown job fields %s" % bad)
         now = time.time()
         sets = ", ".join(["updated_at = ?"] + ["%s = ?" % k for k in values])
-        with self.db:
+        with self._writing(), self.db:
             self.db.execute("BEGIN IMMEDIATE")
             self.db.execute("UPDATE jobs SET %s WHERE id = ?" % sets,
                             [now] + list(values.values()) + [job_id])
@@ -249,7 +284,7 @@ class JobStore:
                         (job_id, at or time.time(), kind, message))
 
     def event(self, job_id, kind, message):
-        with self.db:
+        with self._writing(), self.db:
             self._event(job_id, kind, message)
 
     def events(self, job_id):
@@ -260,13 +295,14 @@ class JobStore:
 
     def set_printer(self, name, **values):
         now = time.time()
-        self.db.execute("INSERT INTO printers (name, updated_at) VALUES (?, ?) "
-                        "ON CONFLICT(name) DO UPDATE SET updated_at = excluded.updated_at",
-                        (name, now))
-        if values:
-            sets = ", ".join("%s = ?" % k for k in values)
-            self.db.execute("UPDATE printers SET %s WHERE name = ?" % sets,
-                            list(values.values()) + [name])
+        with self._writing(), self.db:
+            self.db.execute("INSERT INTO printers (name, updated_at) VALUES (?, ?) "
+                            "ON CONFLICT(name) DO UPDATE SET updated_at = excluded.updated_at",
+                            (name, now))
+            if values:
+                sets = ", ".join("%s = ?" % k for k in values)
+                self.db.execute("UPDATE printers SET %s WHERE name = ?" % sets,
+                                list(values.values()) + [name])
 
     def printers(self):
         return {r["name"]: dict(r) for r in self.db.execute("SELECT * FROM printers")}
@@ -274,7 +310,7 @@ class JobStore:
     # -- control requests (CLI -> daemon) --------------------------------------------------
 
     def request(self, action, target):
-        with self.db:
+        with self._writing(), self.db:
             cur = self.db.execute("INSERT INTO control (at, action, target) VALUES (?, ?, ?)",
                                   (time.time(), action, target))
         return cur.lastrowid
@@ -284,8 +320,9 @@ class JobStore:
             "SELECT * FROM control WHERE done_at IS NULL ORDER BY id")]
 
     def answer(self, request_id, ok, result):
-        self.db.execute("UPDATE control SET done_at = ?, ok = ?, result = ? WHERE id = ?",
-                        (time.time(), int(bool(ok)), result, request_id))
+        with self._writing():
+            self.db.execute("UPDATE control SET done_at = ?, ok = ?, result = ? WHERE id = ?",
+                            (time.time(), int(bool(ok)), result, request_id))
 
     def wait_answer(self, request_id, timeout_s=15.0, poll_s=0.05):
         """(ok, result) once the daemon answered, or None after ``timeout_s``."""

@@ -13,6 +13,14 @@ import tempfile
 from pathlib import Path
 
 
+def mount_point(path):
+    """The mount point of the filesystem holding ``path`` (which must exist)."""
+    mount = Path(path).resolve()
+    while not os.path.ismount(mount) and mount != mount.parent:
+        mount = mount.parent
+    return mount
+
+
 def atomic_write(path, data):
     """Write ``data`` (bytes or str) to ``path`` via a temporary file and rename."""
     path = Path(path)

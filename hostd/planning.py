@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+from hostd.outputs import mount_point
+
 _REPO = str(Path(__file__).resolve().parents[1])
 
 
@@ -135,9 +137,7 @@ def _disk_full(outdir):
         if path.is_file():
             path.unlink()
     free_mb = shutil.disk_usage(outdir).free / 1e6
-    mount = Path(outdir).resolve()
-    while not os.path.ismount(mount) and mount != mount.parent:
-        mount = mount.parent
+    mount = mount_point(outdir)
     return {"ok": False, "code": "plan.disk_full",
             "text": "the disk mounted at %s, which holds the outbox, is full: the plan's outputs "
                     "did not fit (%.0f MB free once they were removed; a 150-175 mm part needs "

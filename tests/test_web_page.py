@@ -39,7 +39,7 @@ def test_farm_view_marks_stale_nodes(tmp_path):
     now = time.time()
     atomic_write(nodes / "n1.json", json.dumps({
         "node_id": "n1", "state": "running", "last_seen": now, "queue_length": 2,
-        "web_url": "http://n1.local:8080/",
+        "web_url": "http://n1.local:8080/", "problem": "jobs.sqlite: cannot record jobs",
         "printers": [{"name": "sim", "state": "printing", "paused": False, "job": "j1",
                       "progress": 0.42}]}))
     atomic_write(nodes / "old<b>.json", json.dumps({
@@ -49,6 +49,7 @@ def test_farm_view_marks_stale_nodes(tmp_path):
     html = n.client.get("/farm").get_data(as_text=True)
     assert '<a href="http://n1.local:8080/">n1</a>' in html
     assert "42 %" in html and "queue 2" in html
+    assert '<p class="note problem">jobs.sqlite: cannot record jobs</p>' in html
     assert 'class="node stale" data-node="old&lt;b&gt;"' in html
     assert "<b>.json" not in html and "old<b>" not in html
     assert html.count("stale") >= 2 and "broken" not in html

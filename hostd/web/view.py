@@ -256,8 +256,10 @@ class NodeView:
                                  for p in printers),
                         ",".join("%s:%s" % (j["id"], j["state"]) for j in queue),
                         ",".join("%s:%s" % (j["id"], j["state"]) for j in recent[:5])])
+        problem = self.daemon.problem if self.daemon is not None else None
+        sig += ";" + (problem or "")
         return {"node_id": self.config.node_id, "version": __version__, "time": time.time(),
-                "daemon": self.daemon is not None, "printers": printers,
+                "daemon": self.daemon is not None, "problem": problem, "printers": printers,
                 "queue": queue, "recent": recent, "signature": sig,
                 "counts": self.counts(), "token_configured": bool(self.config.web.token)}
 

@@ -1,0 +1,93 @@
+"""Putting the job store right: after a crash or restart, and after a full job database.
+
+The daemon's run loop stays the only writer; this mixin holds what it does when the
+store and the world disagree (a file claimed but never recorded, a plan or a print
+that ended while nothing could be written).
+"""
+
+import contextlib
+import logging
+import os
+import time
+
+from hostd import farm as farm_mod
+from hostd import jobs as J
+from hostd.errors import HostdError
+from hostd.watcher import INPUT_SUFFIXES
+
+log = logging.getLogger("hostd.daemon")
+FULL_RETRY_S = 30.0     # while the job database cannot grow: how often to try again
+
+
+class RecoveryMixin:
+    """Recovery of :class:`hostd.daemon.Daemon` (uses its store, slots, plans and farm)."""
+
+
+    def _recover(self):
+        for job_id in self.store.recover():
+            job = self.store.get(job_id)
+            if job["state"] == J.QUEUED:
+                log.warning("job %s: %s was being planned when hostd stopped; planning it again",
+                            job_id, job["rel_path"])
+            if job["state"] == J.INTERRUPTED:
+                log.warning("job %s: %s was printing when hostd stopped (last confirmed line %d); "
+                            "interrupted, the file is in failed/", job_id, job["rel_path"],
+                            job["last_line"])
+                self._to_failed(job, "The print of %s was interrupted: the daemon stopped or "
+                                     "crashed while printing (last confirmed line %d). Check "
+                                     "the printer and the bed, then print it again with "
+                                     "`hostd requeue %s`." % (job["name"], job["last_line"],
+                                                             job_id))
+        for job in self.store.list([J.QUEUED, J.READY]):
+            if not os.path.exists(job["input_path"]):
+                self.store.set_state(job["id"], J.CANCELLED, "input is gone from the claim "
+                                     "folder (released to other nodes while this node was away)")
+            elif job["state"] == J.READY and not self._gcode(job):
+                self.store.set_state(job["id"], J.QUEUED, "outputs missing: planning again")
+        self._adopt_claimed()
+
+    def _adopt_claimed(self):
+        """Record files claimed but never recorded (a crash, a full job database)."""
+        known = {j["input_path"] for j in self.store.list(J.ACTIVE)}
+        for path in sorted(self.farm.claim_dir.glob("*/*")):
+            if path.suffix.lower() in INPUT_SUFFIXES and str(path) not in known:
+                target = None if path.parent.name == farm_mod.ROOT_TARGET else path.parent.name
+                side = path.with_name(path.stem + ".yaml")
+                self._add_job(path.name, (target + "/" if target else "") + path.name, path,
+                              side if side.exists() else None, target)
+
+    def _resync(self):
+        """After the job database was full: make it agree with what happened meanwhile."""
+        held = {s.job_id: s for s in self.slots if s.job_id is not None}
+        for job in self.store.list([J.PLANNING, J.READY]):
+            if job["state"] == J.PLANNING and job["id"] not in self.plans:
+                self.store.set_state(job["id"], J.QUEUED, "planned while the job database "
+                                     "was full: planning again")
+            elif job["id"] in held:
+                self.store.set_state(job["id"], J.PRINTING, "printing on %s" % held[job["id"]].name,
+                                     printer=held[job["id"]].name)
+        self._adopt_claimed()
+
+    def _may_write(self, now):
+        if self._full is None:
+            return True
+        if now < self._full_retry:
+            return False
+        self._full_retry = now + FULL_RETRY_S
+        with self._full_ok():
+            self.store.probe()
+            return True
+        return False
+
+    @contextlib.contextmanager
+    def _full_ok(self):
+        """Writes inside may find the job database full: noted (and told once), not raised."""
+        try:
+            yield
+        except HostdError as exc:
+            if exc.code != J.DISK_FULL:
+                raise
+            if self._full is None:
+                log.error("%s. Prints already running go on; no file is taken and nothing "
+                          "starts until there is room.", exc.text())
+            self._full, self._full_at = exc, time.monotonic()

@@ -1,0 +1,66 @@
+"""One configured printer as the daemon sees it: its link, connected in the background, and
+the job printing on it."""
+
+import logging
+import threading
+
+log = logging.getLogger("hostd.daemon")
+
+
+def link_settings(printer_config):
+    """The link's settings for one printer: its baud and its profile's scripts, so a
+    pause parks, a resume unparks and a cancel runs this printer's own cancel G-code."""
+    from hostd.printer import LinkSettings
+    from pipeline.profile import load_profile
+
+    profile = load_profile(printer_config.profile)
+    return LinkSettings(baud=printer_config.baud,
+                        pause_gcode=profile.render_gcode("pause"),
+                        resume_gcode=profile.render_gcode("resume"),
+                        cancel_gcode=profile.render_gcode("cancel"))
+
+
+class Slot:
+    """One configured printer: its link (connected in the background) and current job."""
+
+    def __init__(self, config):
+        self.config = config
+        self.name = config.name
+        self.printer = None
+        self.job_id = None           # store id of the job printing here
+        self.link_job = None         # hostd.printer.job.Job
+        self.ending = None           # records a finished print once the store takes it
+        self.paused = False          # operator pause: no new jobs
+        self.error = None
+        self._thread = None
+
+    def connect_async(self):
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self._thread = threading.Thread(target=self._connect, name="connect-" + self.name,
+                                        daemon=True)
+        self._thread.start()
+
+    def _connect(self):
+        from hostd.printer import Printer, PrinterError
+        from pipeline.errors import PipelineError
+        try:
+            if self.printer is None:
+                self.printer = Printer(self.config.port, link_settings(self.config))
+            self.printer.connect()
+            self.error = None
+            log.info("printer %s connected (%s)", self.name, self.config.port)
+        except (PrinterError, PipelineError, OSError) as exc:
+            self.error = str(exc)
+            log.warning("printer %s: cannot connect: %s", self.name, exc)
+
+    @property
+    def state(self):
+        return self.printer.state if self.printer is not None else "disconnected"
+
+    def available(self):
+        return self.job_id is None and not self.paused and self.state == "idle"
+
+    def close(self):
+        if self.printer is not None:
+            self.printer.close()

@@ -1,0 +1,134 @@
+"""A full job database (the SD card of a printer host filled up): prints go on, nothing is lost.
+
+The daemon runs in this process and is ticked by hand; the store is made full for real,
+through SQLite's page limit on the daemon's own connection, so every write fails the way
+it does on a full disk ("database or disk is full").
+"""
+
+import dataclasses
+import logging
+import shutil
+import sqlite3
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon_helpers import write_config, write_dome
+from hostd import daemon as daemon_mod
+from hostd import jobs as J
+from hostd import recovery
+from hostd.config import load_config
+from hostd.errors import HostdError
+from hostd.web.app import create_app
+
+
+class Pings:
+    """A notifier that counts watchdog pings."""
+
+    watchdog_s = None
+    enabled = True
+
+    def __init__(self):
+        self.watchdog_pings = 0
+
+    def watchdog(self):
+        self.watchdog_pings += 1
+
+    def ready(self, *a):
+        pass
+
+    status = stopping = ready
+
+
+def fill(store):
+    """Pin the database at its size and use up the room left in its pages."""
+    pages = store.db.execute("PRAGMA page_count").fetchone()[0]
+    store.db.execute("PRAGMA max_page_count = %d" % pages)
+    for size in (4000, 1000, 200, 50, 10, 1):
+        try:
+            while True:
+                store.db.execute("INSERT INTO events (job_id, at, kind, message) "
+                                 "VALUES ('filler', 0, 'filler', ?)", ("x" * size,))
+        except sqlite3.OperationalError as exc:
+            assert "full" in str(exc)
+
+
+def make_room(store):
+    store.db.execute("PRAGMA max_page_count = 1073741823")
+
+
+def run_until(d, predicate, timeout_s=60.0, what="condition"):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        d.tick()
+        if predicate():
+            return
+        time.sleep(0.02)
+    raise AssertionError("timed out waiting for " + what)
+
+
+def test_the_store_maps_sqlite_full_to_its_own_code(tmp_path):
+    store = J.JobStore(tmp_path / "jobs.sqlite")
+    job_id = store.add("a.npy", "a.npy", tmp_path / "a.npy")
+    fill(store)
+    with pytest.raises(HostdError) as err:
+        store.set_state(job_id, J.DONE, "printed")
+    assert err.value.code == J.DISK_FULL
+    assert "free space" in err.value.fix and str(tmp_path) in err.value.text()
+    make_room(store)
+    store.set_state(job_id, J.DONE, "printed")
+    assert store.get(job_id)["state"] == J.DONE
+
+
+def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
+        tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(recovery, "FULL_RETRY_S", 0.5)
+    # Slow enough that the print is still running when the store fills.
+    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000,
+                 "port": "sim://?time_scale=0.02&advanced_ok=1&boot_s=0"}]
+    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
+    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
+    pings = Pings()
+    d = daemon_mod.Daemon(config, notifier=pings)
+    d.setup()
+    caplog.set_level(logging.INFO, logger="hostd.daemon")
+    try:
+        src = write_dome(tmp_path / "in" / "first.npy")
+        for f in (src, src.with_suffix(".yaml")):
+            shutil.copy(f, config.drop_dir / f.name)
+        run_until(d, lambda: d.slots[0].job_id is not None, what="the first print to start")
+        first = d.slots[0].job_id
+
+        fill(d.store)
+        src2 = write_dome(tmp_path / "in" / "second.npy")
+        for f in (src2, src2.with_suffix(".yaml")):
+            shutil.copy(f, config.drop_dir / f.name)
+        pings_before = pings.watchdog_pings
+        slot = d.slots[0]
+        run_until(d, lambda: slot.link_job.snapshot()["result"] is not None, timeout_s=120,
+                  what="the printer to finish")
+        for _ in range(20):
+            d.tick()
+            time.sleep(0.05)
+        # The printer finished; the store could not take it, so the slot still holds it.
+        assert slot.link_job.snapshot()["result"] == "done"
+        assert slot.job_id == first and d.store.get(first)["state"] == J.PRINTING
+        assert d.problem and "cannot record jobs" in d.problem
+        assert [j["name"] for j in d.store.list()] == ["first.npy"]
+        assert pings.watchdog_pings > pings_before, "the watchdog must be fed while printing"
+        full_lines = [r for r in caplog.records if "cannot record jobs" in r.getMessage()]
+        assert len(full_lines) == 1 and full_lines[0].levelno == logging.ERROR
+        page = create_app(config, store=d.store, daemon=d).test_client().get("/")
+        assert "cannot record jobs" in page.get_data(as_text=True)
+
+        make_room(d.store)
+        run_until(d, lambda: d.store.get(first)["state"] == J.DONE
+                  and any(j["name"] == "second.npy" for j in d.store.list()),
+                  what="the first job recorded done and the second file taken")
+        assert slot.job_id != first and d.problem is None
+        done = Path(d.store.get(first)["input_path"])
+        assert done.name == "first.npy" and done.is_file() and config.done_dir in done.parents
+        assert "takes writes again" in caplog.text
+    finally:
+        d.shutdown()
