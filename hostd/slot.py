@@ -30,6 +30,7 @@ class Slot:
         self.job_id = None           # store id of the job printing here
         self.link_job = None         # hostd.printer.job.Job
         self.ending = None           # records a finished print once the store takes it
+        self.progress_due = 0.0      # when its progress is next written to the store
         self.paused = False          # operator pause: no new jobs
         self.error = None
         self._thread = None

@@ -1,4 +1,5 @@
-"""A full job database (the SD card of a printer host filled up): prints go on, nothing is lost.
+"""The daemon and its job store: a full database (the SD card of a printer host filled up)
+keeps prints going and loses nothing; progress is written at a pace an SD card can take.
 
 The daemon runs in this process and is ticked by hand; the store is made full for real,
 through SQLite's page limit on the daemon's own connection, so every write fails the way
@@ -81,29 +82,37 @@ def test_the_store_maps_sqlite_full_to_its_own_code(tmp_path):
     assert store.get(job_id)["state"] == J.DONE
 
 
+def in_process_daemon(tmp_path, time_scale):
+    """A daemon in this process with one simulated printer (no web server), set up."""
+    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000,
+                 "port": "sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale}]
+    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
+    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
+    d = daemon_mod.Daemon(config, notifier=Pings())
+    d.setup()
+    return d
+
+
+def drop_dome(d, tmp_path, name):
+    src = write_dome(tmp_path / "in" / name)
+    for f in (src, src.with_suffix(".yaml")):
+        shutil.copy(f, d.config.drop_dir / f.name)
+
+
 def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         tmp_path, monkeypatch, caplog):
     monkeypatch.setattr(recovery, "FULL_RETRY_S", 0.5)
     # Slow enough that the print is still running when the store fills.
-    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000,
-                 "port": "sim://?time_scale=0.02&advanced_ok=1&boot_s=0"}]
-    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
-    pings = Pings()
-    d = daemon_mod.Daemon(config, notifier=pings)
-    d.setup()
+    d = in_process_daemon(tmp_path, time_scale=0.02)
+    config, pings = d.config, d.notify
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     try:
-        src = write_dome(tmp_path / "in" / "first.npy")
-        for f in (src, src.with_suffix(".yaml")):
-            shutil.copy(f, config.drop_dir / f.name)
+        drop_dome(d, tmp_path, "first.npy")
         run_until(d, lambda: d.slots[0].job_id is not None, what="the first print to start")
         first = d.slots[0].job_id
 
         fill(d.store)
-        src2 = write_dome(tmp_path / "in" / "second.npy")
-        for f in (src2, src2.with_suffix(".yaml")):
-            shutil.copy(f, config.drop_dir / f.name)
+        drop_dome(d, tmp_path, "second.npy")
         pings_before = pings.watchdog_pings
         slot = d.slots[0]
         run_until(d, lambda: slot.link_job.snapshot()["result"] is not None, timeout_s=120,
@@ -130,5 +139,29 @@ def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         done = Path(d.store.get(first)["input_path"])
         assert done.name == "first.npy" and done.is_file() and config.done_dir in done.parents
         assert "takes writes again" in caplog.text
+    finally:
+        d.shutdown()
+
+
+def test_progress_is_written_every_few_seconds_not_every_tick(tmp_path):
+    d = in_process_daemon(tmp_path, time_scale=0.015)
+    writes = []
+    update = d.store.update
+
+    def counted(job_id, event=None, **values):
+        if "progress" in values and event is None:
+            writes.append(time.monotonic())
+        return update(job_id, event, **values)
+    d.store.update = counted
+    try:
+        drop_dome(d, tmp_path, "dome.npy")
+        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
+        job_id, started = d.slots[0].job_id, time.monotonic()
+        run_until(d, lambda: d.store.get(job_id)["state"] == J.DONE, timeout_s=120,
+                  what="the print to end")
+        seconds = time.monotonic() - started
+        assert seconds > 2 * daemon_mod.PROGRESS_S, "the print must outlast a few writes"
+        assert 2 <= len(writes) <= seconds / daemon_mod.PROGRESS_S + 2, (len(writes), seconds)
+        assert min(b - a for a, b in zip(writes, writes[1:])) >= 0.9 * daemon_mod.PROGRESS_S
     finally:
         d.shutdown()
