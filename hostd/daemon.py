@@ -53,9 +53,6 @@ class Daemon(ControlMixin, RecoveryMixin):
         self._next_reconnect = 0.0
         self._profile_hashes = {}
         self._skipped = set()
-        self._full = None            # the jobs.disk_full error while the store cannot grow
-        self._full_at = 0.0          # when a write last failed for it
-        self._full_retry = 0.0
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -101,15 +98,17 @@ class Daemon(ControlMixin, RecoveryMixin):
         # A full job database stops everything that starts work (a claimed file must be
         # recorded, a started plan or print too), never the prints already running.
         writable = self._may_write(now)
-        with self._full_ok():
+        starting = writable and self._share is None
+        with self._full_ok(), self._share_ok():
             if writable:
                 self._control()
+            if starting:
                 for cand in self.watcher.poll(now):
                     self._intake(cand)
                 self._reap_plans()
                 self._start_plans()
             self._follow_prints()
-            if writable:
+            if starting:
                 self._dispatch()
             if writable and self._full is not None and self._full_at < now:
                 self._resync()
@@ -340,6 +339,8 @@ class Daemon(ControlMixin, RecoveryMixin):
                                       last_line=snap["last_confirmed_line"])
                 continue
             if slot.ending is None:
+                if self._share is not None:
+                    continue   # the input is filed once the share is back
                 slot.ending = self._ending(slot, snap)
             slot.ending()   # may find the store full: the slot keeps the job until it is recorded
             slot.job_id = slot.link_job = slot.ending = None
@@ -353,12 +354,16 @@ class Daemon(ControlMixin, RecoveryMixin):
             if copies < job["copies"]:
                 return lambda: self.store.set_state(job["id"], J.READY, "copy %d printed" % copies,
                                                     copies_done=copies, progress=1.0)
-            dest, side = archive_done(job["input_path"], job["sidecar_path"],
-                                      self.config.done_dir, job["name"])
-            return lambda: self.store.set_state(
-                job["id"], J.DONE, "printed on %s in %.0f s" % (slot.name, snap["seconds"]),
-                copies_done=copies, progress=1.0, last_line=snap["last_confirmed_line"],
-                input_path=str(dest), sidecar_path=str(side) if side else None)
+            message = "printed on %s in %.0f s" % (slot.name, snap["seconds"])
+            values = dict(copies_done=copies, progress=1.0, last_line=snap["last_confirmed_line"])
+            if os.path.exists(job["input_path"]):
+                dest, side = archive_done(job["input_path"], job["sidecar_path"],
+                                          self.config.done_dir, job["name"])
+                values.update(input_path=str(dest), sidecar_path=str(side) if side else None)
+            else:
+                message += ("; its file had left the claim folder (released to other nodes "
+                            "while this node could not renew its lease), so it is not in done/")
+            return lambda: self.store.set_state(job["id"], J.DONE, message, **values)
         if snap["result"] == "cancelled":
             return self._filing(job, "The print of %s was %s." % (
                 job["name"], snap["error"] or "cancelled by a person (hostd cancel)"),
@@ -420,11 +425,6 @@ class Daemon(ControlMixin, RecoveryMixin):
 
     # -- status -------------------------------------------------------------------------------------
 
-    @property
-    def problem(self):
-        """What keeps this node from taking work, for people (None: nothing)."""
-        return self._full.text() if self._full is not None else None
-
     def status(self, state="running"):
         printers = []
         for slot in self.slots:
@@ -439,23 +439,25 @@ class Daemon(ControlMixin, RecoveryMixin):
                 "problem": self.problem}
 
     def _heartbeat(self, state="running"):
-        try:
+        with self._share_ok():
             self.farm.renew_lease()
+            self._share_back()
             if state == "running":
                 self.farm.release_dead()
-            status = self.status(state)
-            self.farm.publish_status(status)
-        except OSError as exc:
-            log.warning("cannot write to the share: %s", exc)
-            return
+        status = self.status(state)
+        if self._share is None:
+            with self._share_ok():
+                self.farm.publish_status(status)
         with self._full_ok():
             for slot in self.slots:
                 self.store.set_printer(slot.name, state=slot.state)
         busy = [s for s in status["printers"] if s["job"]]
-        self.notify.status("%d printing, %d queued, %d planning%s" % (
+        self.notify.status("%d printing, %d queued, %d planning%s%s" % (
             len(busy), status["queue_length"], len(status["planning"]),
-            "; job database full" if self._full is not None else ""))
-        # Alive and printing: a restart would not make room, only end the prints.
+            "; job database full" if self._full is not None else "",
+            "; share unreachable" if self._share is not None else ""))
+        # Alive and printing: a restart would neither make room nor bring the share back,
+        # only end the prints.
         self.notify.watchdog()
 
 

@@ -105,7 +105,9 @@ class Farm:
         return dest, side
 
     def renew_lease(self):
-        self.claim_dir.mkdir(parents=True, exist_ok=True)
+        # Never the parents: a share that is not mounted must fail here, not be
+        # recreated as empty folders on the local disk under its mount point.
+        self.claim_dir.mkdir(exist_ok=True)
         atomic_write(self.claim_dir / ".lease", "%f\n" % time.time())
 
     def release_dead(self, now=None):

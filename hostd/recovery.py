@@ -1,8 +1,10 @@
-"""Putting the job store right: after a crash or restart, and after a full job database.
+"""Putting the job store right: after a crash or restart, a full job database, a lost share.
 
 The daemon's run loop stays the only writer; this mixin holds what it does when the
 store and the world disagree (a file claimed but never recorded, a plan or a print
-that ended while nothing could be written).
+that ended while nothing could be written), and how it rides out the two outages a
+printer host sees (its SD card full, the network share gone): told once, prints going
+on, nothing new started until it is over.
 """
 
 import contextlib
@@ -22,6 +24,10 @@ FULL_RETRY_S = 30.0     # while the job database cannot grow: how often to try a
 class RecoveryMixin:
     """Recovery of :class:`hostd.daemon.Daemon` (uses its store, slots, plans and farm)."""
 
+    _full = None        # the jobs.disk_full error while the job database cannot grow
+    _full_at = 0.0      # when a write last failed for it
+    _full_retry = 0.0
+    _share = None       # the OSError while the share cannot be written
 
     def _recover(self):
         for job_id in self.store.recover():
@@ -57,7 +63,7 @@ class RecoveryMixin:
                               side if side.exists() else None, target)
 
     def _resync(self):
-        """After the job database was full: make it agree with what happened meanwhile."""
+        """After an outage: make the store agree with what happened meanwhile."""
         held = {s.job_id: s for s in self.slots if s.job_id is not None}
         for job in self.store.list([J.PLANNING, J.READY]):
             if job["state"] == J.PLANNING and job["id"] not in self.plans:
@@ -91,3 +97,35 @@ class RecoveryMixin:
                 log.error("%s. Prints already running go on; no file is taken and nothing "
                           "starts until there is room.", exc.text())
             self._full, self._full_at = exc, time.monotonic()
+
+    @contextlib.contextmanager
+    def _share_ok(self):
+        """Share operations inside may fail (gone, read-only): noted (told once), not raised."""
+        try:
+            yield
+        except OSError as exc:
+            if self._share is None:
+                log.error("%s (%s). Prints already running go on; no file is taken and nothing "
+                          "starts until it is back. Other nodes release this node's claimed "
+                          "files after lease_s without a lease renewal. Fix: check the share's "
+                          "mount and network.", self._share_text(exc), exc)
+            self._share = exc
+
+    def _share_text(self, exc):
+        # Stable wording (no temporary file names): the page reloads when it changes.
+        return "cannot write to the share at %s: %s" % (self.config.drop_dir,
+                                                        exc.strerror or type(exc).__name__)
+
+    def _share_back(self):
+        if self._share is not None:
+            self._share = None
+            log.info("the share takes writes again; carrying on")
+            with self._full_ok():
+                self._resync()
+
+    @property
+    def problem(self):
+        """What keeps this node from taking work, for people (None: nothing)."""
+        texts = [e.text() if isinstance(e, HostdError) else self._share_text(e)
+                 for e in (self._full, self._share) if e is not None]
+        return "; ".join(texts) or None

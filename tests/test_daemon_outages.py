@@ -1,9 +1,11 @@
-"""The daemon and its job store: a full database (the SD card of a printer host filled up)
-keeps prints going and loses nothing; progress is written at a pace an SD card can take.
+"""The two outages of a printer host, ridden out: its job database full (the SD card filled
+up) and its network share gone. Prints go on, systemd's watchdog is fed, nothing is lost.
+Also: progress is written at a pace an SD card can take.
 
-The daemon runs in this process and is ticked by hand; the store is made full for real,
+The daemon runs in this process and is ticked by hand. The store is made full for real,
 through SQLite's page limit on the daemon's own connection, so every write fails the way
-it does on a full disk ("database or disk is full").
+it does on a full disk ("database or disk is full"); the share goes away the way an
+unmounted one does (its drop folder is no longer there).
 """
 
 import dataclasses
@@ -163,5 +165,39 @@ def test_progress_is_written_every_few_seconds_not_every_tick(tmp_path):
         assert seconds > 2 * daemon_mod.PROGRESS_S, "the print must outlast a few writes"
         assert 2 <= len(writes) <= seconds / daemon_mod.PROGRESS_S + 2, (len(writes), seconds)
         assert min(b - a for a, b in zip(writes, writes[1:])) >= 0.9 * daemon_mod.PROGRESS_S
+    finally:
+        d.shutdown()
+
+
+def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_disk(
+        tmp_path, caplog):
+    d = in_process_daemon(tmp_path, time_scale=0.02)
+    caplog.set_level(logging.INFO, logger="hostd.daemon")
+    drop = d.config.drop_dir
+    try:
+        drop_dome(d, tmp_path, "dome.npy")
+        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
+        job_id, slot = d.slots[0].job_id, d.slots[0]
+
+        drop.rename(drop.with_name("drop.away"))     # the share's drop folder is gone
+        pings = d.notify.watchdog_pings
+        run_until(d, lambda: d.problem is not None, what="the lost share to be noticed")
+        deadline = time.monotonic() + 4 * d.config.heartbeat_s
+        while time.monotonic() < deadline:
+            d.tick()
+            time.sleep(0.02)
+        assert not drop.exists(), "the drop folder must not be recreated on the local disk"
+        assert "cannot write to the share" in d.problem
+        assert d.notify.watchdog_pings >= pings + 2, "the watchdog must be fed while printing"
+        assert slot.job_id == job_id and slot.link_job.snapshot()["result"] in (None, "done")
+        lost = [r for r in caplog.records if "cannot write to the share" in r.getMessage()]
+        assert len(lost) == 1 and lost[0].levelno == logging.ERROR
+
+        drop.with_name("drop.away").rename(drop)
+        run_until(d, lambda: d.store.get(job_id)["state"] == J.DONE, timeout_s=120,
+                  what="the print to end and be filed")
+        assert d.problem is None and "share takes writes again" in caplog.text
+        done = Path(d.store.get(job_id)["input_path"])
+        assert done.is_file() and d.config.done_dir in done.parents
     finally:
         d.shutdown()
