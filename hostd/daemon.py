@@ -62,6 +62,8 @@ class Daemon(ControlMixin, RecoveryMixin):
         for d in (c.drop_dir, c.state_dir, c.outbox_dir, c.done_dir, c.failed_dir):
             Path(d).mkdir(parents=True, exist_ok=True)
         self.store = J.JobStore(c.db_path)
+        # Nothing prints before the loop starts: copies left by a crash can go.
+        shutil.rmtree(Path(c.state_dir) / "spool", ignore_errors=True)
         self.farm.setup()
         self._recover()
         for slot in self.slots:
@@ -312,15 +314,35 @@ class Daemon(ControlMixin, RecoveryMixin):
             self.store.set_state(job["id"], J.QUEUED, "G-code missing from the outbox: planning again")
             return
         try:
-            slot.link_job = slot.printer.start(str(gcode), job_id=job["id"])
+            slot.link_job = slot.printer.start(str(self._spool(job, gcode)), job_id=job["id"])
         except PrinterError as exc:
             log.warning("printer %s cannot start %s: %s", slot.name, job["id"], exc)
+            self._unspool(job["id"])
             return
         slot.job_id = job["id"]
         self.store.set_state(job["id"], J.PRINTING, "printing on %s (copy %d of %d)" % (
             slot.name, job["copies_done"] + 1, job["copies"]), printer=slot.name,
             started_at=job["started_at"] or time.time(), progress=0.0)
         self.store.set_printer(slot.name, job_id=job["id"])
+
+    def _spool(self, job, gcode):
+        """A copy of the G-code on the local disk to print from: the outbox is often on the
+        share, and a share that goes away mid-print must not starve the printer."""
+        dest = Path(self.config.state_dir) / "spool" / (job["id"] + ".gcode")
+        part = dest.with_suffix(".part")
+        try:
+            dest.parent.mkdir(exist_ok=True)
+            shutil.copyfile(gcode, part)
+            os.replace(part, dest)
+            return dest
+        except OSError as exc:
+            part.unlink(missing_ok=True)
+            log.warning("job %s: cannot copy its G-code to %s (%s); printing it from the outbox",
+                        job["id"], dest.parent, exc)
+            return gcode
+
+    def _unspool(self, job_id):
+        (Path(self.config.state_dir) / "spool" / (job_id + ".gcode")).unlink(missing_ok=True)
 
     def _follow_prints(self):
         for slot in self.slots:
@@ -343,6 +365,7 @@ class Daemon(ControlMixin, RecoveryMixin):
                     continue   # the input is filed once the share is back
                 slot.ending = self._ending(slot, snap)
             slot.ending()   # may find the store full: the slot keeps the job until it is recorded
+            self._unspool(slot.job_id)
             slot.job_id = slot.link_job = slot.ending = None
             self.store.set_printer(slot.name, job_id=None)
 
@@ -377,6 +400,7 @@ class Daemon(ControlMixin, RecoveryMixin):
         job = self.store.get(slot.job_id)
         snap = slot.link_job.snapshot() if slot.link_job is not None else {}
         line = snap.get("last_confirmed_line", job["last_line"])
+        self._unspool(slot.job_id)
         slot.job_id, slot.link_job = None, None
         self.store.update(job["id"], last_line=line)
         self._to_failed(dict(job, last_line=line),

@@ -201,3 +201,26 @@ def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_di
         assert done.is_file() and d.config.done_dir in done.parents
     finally:
         d.shutdown()
+
+
+def test_prints_are_fed_from_a_local_copy_of_the_gcode(tmp_path):
+    """The outbox is often on the share: a print reads a copy in ``state_dir/spool``,
+    which goes when the print ends (and, left by a crash, when the daemon starts)."""
+    stale = tmp_path / "state" / "spool" / "left-by-a-crash.gcode"
+    stale.parent.mkdir(parents=True)
+    stale.write_text("G28\n")
+    d = in_process_daemon(tmp_path, time_scale=0.01)
+    try:
+        assert not stale.exists()
+        drop_dome(d, tmp_path, "dome.npy")
+        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
+        job_id, slot = d.slots[0].job_id, d.slots[0]
+        source = Path(slot.link_job.snapshot()["name"])
+        assert source.parent == d.config.state_dir / "spool"
+        outbox = next(Path(d.store.get(job_id)["outbox"]).glob("*.gcode"))
+        assert source.read_bytes() == outbox.read_bytes()
+        run_until(d, lambda: d.store.get(job_id)["state"] == J.DONE, timeout_s=120,
+                  what="the print to end")
+        assert not source.exists()
+    finally:
+        d.shutdown()
