@@ -15,22 +15,21 @@ from concurrent.futures import Future
 import serial
 
 from hostd.printer import protocol
-from hostd.printer.errors import PrinterError
+from hostd.printer.errors import PortLost, PrinterError
 from hostd.printer.events import Event, Publisher
 from hostd.printer.flow import LineFlow, Sent
 from hostd.printer.handshake import handshake
 from hostd.printer.job import CANCELLED, CANCELLING, DONE, ERROR, INTERRUPTED
 from hostd.printer.job import PAUSED, PAUSING, PRINTING
-from hostd.printer.settings import script_lines
+from hostd.printer.requests import (BLOCKING_HEAT, CONNECTING, DISCONNECTED, ERROR_STATE, HEATING,
+                                     IDLE, Requests)
 from hostd.printer.temps import TemperatureLog
 from hostd.printer.transport import Reader, close_port, open_port
 
-DISCONNECTED, CONNECTING, IDLE, HEATING, ERROR_STATE = "disconnected", "connecting", "idle", "heating", "error"
-_BLOCKING_HEAT = ("M109", "M190", "M191")
 _FATAL_WORDS = ("halted", "kill", "stopped")
 
 
-class Driver(Publisher):
+class Driver(Requests, Publisher):
     """State and thread of the link; :class:`~hostd.printer.link.Printer` is its public face."""
 
     def __init__(self, port, settings, on_event, simulator):
@@ -112,7 +111,7 @@ class Driver(Publisher):
                             return
                 self._tick()
                 self._pump()
-            except _PortLost as lost:
+            except PortLost as lost:
                 self._lost(str(lost))
                 if self.settings.reconnect and not self._closing:
                     self._reconnect_at = time.monotonic() + self.settings.reconnect_interval_s
@@ -164,7 +163,7 @@ class Driver(Publisher):
             except PrinterError as exc:
                 if future:
                     future.set_exception(exc)
-            except _PortLost as exc:
+            except PortLost as exc:
                 if future:
                     future.set_exception(PrinterError("port", str(exc)))
                 raise
@@ -180,7 +179,7 @@ class Driver(Publisher):
         elif kind == "reply":
             self._on_reply(item[2], item[3])
         elif kind == "lost":
-            raise _PortLost(item[2])
+            raise PortLost(item[2])
         return None
 
     # -- connection ----------------------------------------------------------------------
@@ -252,88 +251,6 @@ class Driver(Publisher):
         self._set_state(DISCONNECTED)
         self._finish_job(INTERRUPTED, reason)
 
-    # -- requests ------------------------------------------------------------------------
-
-    def _require_connected(self):
-        if self._serial is None or self._state in (DISCONNECTED, CONNECTING, ERROR_STATE):
-            raise PrinterError("state", "printer is %s" % self._state)
-
-    def _do_start(self, job):
-        self._require_connected()
-        if self.job is not None and self.job.result is None:
-            raise PrinterError("state", "a job is already running (%s)" % self.job.id)
-        self.job = job
-        self._set_state(PRINTING)
-        self._emit("job", event="started", job=job.snapshot())
-        return job
-
-    def _active_job(self):
-        job = self.job
-        if job is None or job.result is not None:
-            raise PrinterError("state", "no job is running")
-        return job
-
-    def _do_pause(self):
-        job = self._active_job()
-        if job.phase == PRINTING:
-            job.phase = PAUSING
-            self._queue_script("pause", self.settings.pause_gcode)
-        return job.phase
-
-    def _do_resume(self):
-        job = self._active_job()
-        if job.phase in (PAUSING, PAUSED):
-            self._queue_script("resume", self.settings.resume_gcode)
-            job.phase = PRINTING
-            self._set_state(PRINTING)
-        return job.phase
-
-    def _do_cancel(self):
-        job = self._active_job()
-        if job.phase != CANCELLING:
-            job.phase = CANCELLING
-            self._queue_script("cancel", self.settings.cancel_gcode)
-            heating = any(s.command[:4] in _BLOCKING_HEAT for s in self._flow.fifo)
-            if heating and self.capabilities.get("EMERGENCY_PARSER") and self._serial is not None:
-                # M109/M190 would hold the cancel script back until the target is reached;
-                # M108 (emergency parser) ends the wait at once, as OctoPrint does.
-                with self._write_lock:
-                    try:
-                        self._serial.write(b"M108\n")
-                    except (serial.SerialException, OSError) as exc:
-                        raise _PortLost("write failed: %s" % exc) from exc
-                if not self.capabilities.get("ADVANCED_OK"):
-                    self._flow.expect_foreign_ok()   # M108 is answered by a plain ok too
-        return job.phase
-
-    def _do_send(self, command):
-        self._require_connected()
-        command = protocol.clean(command)
-        if command:
-            self._priority.append((command, ("user",)))
-
-    def _do_estop(self):
-        self.last_error = "emergency stop (M112)"
-        self._abandon_stream()
-        # Without EMERGENCY_PARSER the M112 waits behind the queued commands.
-        self._emit("estop", emergency_parser=bool(self.capabilities.get("EMERGENCY_PARSER")))
-        self._set_state(ERROR_STATE)
-        self._finish_job(ERROR, "emergency stop")
-
-    def _abandon_stream(self):
-        """Stop waiting for answers and drop anything queued (the firmware is halted)."""
-        self._priority.clear()
-        self._flow.abandon()
-
-    def _queue_script(self, name, text):
-        for command in script_lines(text):
-            self._priority.append((command, ("script", name)))
-
-    def _finish_job(self, result, error=None):
-        job = self.job
-        if job is not None and job.finish(result, error):
-            self._emit("job", event="finished", job=job.snapshot())
-
     # -- receiving -----------------------------------------------------------------------
 
     def _on_reply(self, reply, at):
@@ -341,7 +258,7 @@ class Driver(Publisher):
         # Anything but a periodic temperature report shows the firmware is working on our
         # lines; reports count only while M109/M190 blocks (Marlin prints them instead of
         # busy messages then). Otherwise M155 reports would hide a lost ok for ever.
-        if kind != protocol.TEMPS or self._flow.head_command()[:4] in _BLOCKING_HEAT:
+        if kind != protocol.TEMPS or self._flow.head_command()[:4] in BLOCKING_HEAT:
             self._last_rx = at
         if reply.temps:
             self.temperatures.update(reply.temps, time.time())
@@ -372,7 +289,7 @@ class Driver(Publisher):
                 self._on_firmware_error(reply.text)
         elif kind == protocol.START:
             if self._state not in (CONNECTING, ERROR_STATE):
-                raise _PortLost("printer reset unexpectedly (got 'start')")
+                raise PortLost("printer reset unexpectedly (got 'start')")
         elif kind == protocol.ACTION:
             self._on_action(reply)
         elif kind in (protocol.ECHO, protocol.OTHER, protocol.FIRMWARE):
@@ -380,32 +297,6 @@ class Driver(Publisher):
                 self._flow.expect_foreign_ok()   # (with ADVANCED_OK its ok lacks N: on_ok knows)
             self._emit("log", text=reply.text)
         # BUSY: a sign of life only (it resets the answer timeout above).
-
-    def _on_action(self, reply):
-        """The printer's own controls (``//action:``): do what its user asked.
-
-        Marlin leaves a host's print to the host: cancelling or pausing it on the
-        printer's screen only sends ``//action:cancel`` or ``pause``, so without this
-        the print would go on. ``paused``/``resumed`` say the firmware did it itself
-        (a filament change): the feed stops or goes on, without our scripts.
-        """
-        name = reply.action
-        self._emit("action", action=name, text=reply.text)
-        job = self.job
-        if job is None or job.result is not None:
-            return
-        if name in ("cancel", "abort"):
-            job.cancelled_by = "on the printer"
-            self._do_cancel()
-        elif name == "pause":
-            self._do_pause()
-        elif name == "resume":
-            self._do_resume()
-        elif name == "paused" and job.phase == PRINTING:
-            job.phase = PAUSING          # PAUSED once everything sent is answered
-        elif name == "resumed" and job.phase in (PAUSING, PAUSED):
-            job.phase = PRINTING
-            self._set_state(PRINTING)
 
     def _confirm(self, sent):
         job = self.job
@@ -505,7 +396,7 @@ class Driver(Publisher):
             try:
                 self._serial.write(sent.data)
             except (serial.SerialException, OSError) as exc:
-                raise _PortLost("write failed: %s" % exc) from exc
+                raise PortLost("write failed: %s" % exc) from exc
         if self.job is not None and self.job.result is None:
             self.job.bytes_sent += len(sent.data)
 
@@ -525,12 +416,8 @@ class Driver(Publisher):
                 self._finish_job(CANCELLED, job.cancelled_by and "cancelled " + job.cancelled_by)
             elif job.phase == PRINTING and self._state in (PRINTING, HEATING):
                 head = self._flow.head_command()[:4]
-                self._set_state(HEATING if head in _BLOCKING_HEAT else PRINTING)
+                self._set_state(HEATING if head in BLOCKING_HEAT else PRINTING)
             now = time.monotonic()
             if job.result is None and now - self._last_progress >= self.settings.progress_interval_s:
                 self._last_progress = now
                 self._emit("progress", **job.snapshot())
-
-
-class _PortLost(Exception):
-    """Internal: the port failed or the board reset; handled in the driver loop."""

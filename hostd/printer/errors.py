@@ -22,3 +22,7 @@ class PrinterError(Exception):
 
     def __str__(self):
         return "%s: %s" % (self.code, self.message)
+
+
+class PortLost(Exception):
+    """Internal to the driver: the port failed or the board reset; handled in its loop."""
