@@ -18,7 +18,6 @@ import http.client
 import json
 import shutil
 import socket
-import statistics
 import sys
 import tempfile
 import threading

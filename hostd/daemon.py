@@ -175,7 +175,7 @@ class Daemon(ControlMixin, RecoveryMixin):
 
     def _add_job(self, name, rel_path, path, side, target):
         from pipeline.errors import PipelineError
-        from pipeline.heightfield import load_sidecar
+        from pipeline.sidecar import load_sidecar
         values = dict(target=target, node_id=self.config.node_id,
                       sidecar_path=str(side) if side else None)
         problem = name_problem(name)
@@ -216,7 +216,8 @@ class Daemon(ControlMixin, RecoveryMixin):
 
     def _profile_hash(self, name):
         if name not in self._profile_hashes:
-            from pipeline.profile import load_profile, profile_hash
+            from pipeline.profile import load_profile
+            from pipeline.profile_dump import profile_hash
             self._profile_hashes[name] = profile_hash(load_profile(name))
         return self._profile_hashes[name]
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from pipeline import __version__
 from pipeline import heightfield as hfio
+from pipeline.sidecar import settings as sidecar_settings
 from pipeline.flatten import flatten
 from pipeline.geometry import signed_areas_2d
 from pipeline.mesh import build_mesh
@@ -95,7 +96,7 @@ def plan_file(path, profile, progress=None):
     result.input_hf, result.sidecar = hf, sidecar
     timing["load"] = time.perf_counter() - t
 
-    opts = hfio.settings(sidecar, profile)
+    opts = sidecar_settings(sidecar, profile)
     t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])
     hf, vrep = validate(hf, opts["max_fill_mm"], bed_mm=profile.bed_mm)
     hf, srep = simplify(hf, opts["min_prominence_mm"], opts["smooth_mm"])

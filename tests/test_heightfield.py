@@ -11,6 +11,7 @@ import trimesh
 from PIL import Image
 
 from pipeline import heightfield as H
+from pipeline import sidecar as S
 from pipeline.errors import InvalidHeightField, InvalidSidecar
 from pipeline.profile import load_profile
 
@@ -407,11 +408,11 @@ def test_sidecar_all_keys_and_settings(tmp_path):
     (tmp_path / "a.yaml").write_text(
         "pixel_mm: 0.5\nheight_scale: 0.01\nprofile: prusa-mk3s-0.4mm\nmax_fill_mm: 4\n"
         "min_prominence_mm: 1.5\ncopies: 3\npriority: -2\n")
-    sc = H.load_sidecar(tmp_path / "a.yaml")
+    sc = S.load_sidecar(tmp_path / "a.yaml")
     assert (sc.pixel_mm, sc.height_scale, sc.profile, sc.copies, sc.priority) == \
         (0.5, 0.01, "prusa-mk3s-0.4mm", 3, -2)
     p = load_profile("generic-0.5mm")
-    s = H.settings(sc, p)
+    s = S.settings(sc, p)
     assert s == {"max_fill_mm": 4.0, "min_prominence_mm": 1.5, "smooth_mm": p.mesh.smooth_mm}
-    assert H.settings(H.Sidecar(), p)["max_fill_mm"] == p.validate.max_fill_mm
-    assert H.load_sidecar(tmp_path / "missing.yaml") == H.Sidecar()
+    assert S.settings(S.Sidecar(), p)["max_fill_mm"] == p.validate.max_fill_mm
+    assert S.load_sidecar(tmp_path / "missing.yaml") == S.Sidecar()

@@ -137,7 +137,7 @@ def test_staging_is_discarded_when_writing_fails(small_dome, tmp_path, monkeypat
 
 
 def test_sidecar_overrides_the_simplification_settings(tmp_path):
-    from pipeline.heightfield import load_sidecar, settings
+    from pipeline.sidecar import load_sidecar, settings
     from pipeline.profile import load_profile
     side = tmp_path / "x.yaml"
     side.write_text("min_prominence_mm: 6\nsmooth_mm: 3.5\nmax_fill_mm: 4\n")

@@ -20,7 +20,8 @@ from pipeline.calibration import (COLUMNS, CalibrationError, calibration_traces,
                                   read_measurements, thickness_values)
 from pipeline.errors import PipelineError
 from pipeline.gcode import GcodeSettings, write_thickness_gcode
-from pipeline.profile import load_profile, profile_to_yaml
+from pipeline.profile import load_profile
+from pipeline.profile_dump import profile_to_yaml
 
 PROG = "hostd calibrate"
 

@@ -25,7 +25,7 @@ def add_parser(sub):
 def _profile_name(args):
     if args.profile:
         return args.profile
-    from pipeline.heightfield import load_sidecar, sidecar_path
+    from pipeline.sidecar import load_sidecar, sidecar_path
     try:
         side = load_sidecar(sidecar_path(Path(args.input)))
         if side is not None and getattr(side, "profile", None):

@@ -1,0 +1,132 @@
+"""The sidecar ``NAME.yaml`` beside an input: physical scale and per-file options.
+
+Errors (``InvalidSidecar``): ``sidecar.yaml``, ``.unknown_key``, ``.type``, ``.value``,
+``.conflict``; each names the file, the key and the fix.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from pipeline.errors import InvalidSidecar
+from pipeline.profile import MeshParams, ValidateParams
+
+
+@dataclass(frozen=True)
+class Sidecar:
+    """Options from ``NAME.yaml`` beside an input (all optional).
+
+    size_mm : longest footprint side, mm (or ``pixel_mm``: grid spacing, mm)
+    height_mm : maximum height, mm (or ``height_scale``: mm per input unit)
+    profile : profile name or path to plan with
+    max_fill_mm : deepest closed depression to fill, mm (overrides the profile)
+    min_prominence_mm : smallest peak kept by simplification, mm (overrides the profile)
+    smooth_mm : smoothing scale before meshing, mm (overrides the profile)
+    copies : how many sheets to print (>= 1); priority : queue priority (daemon)
+    source : the sidecar file, or None when there is none
+    """
+
+    size_mm: float = None
+    pixel_mm: float = None
+    height_mm: float = None
+    height_scale: float = None
+    profile: str = None
+    max_fill_mm: float = None
+    min_prominence_mm: float = None
+    smooth_mm: float = None
+    copies: int = 1
+    priority: int = 0
+    source: str = None
+
+
+# key -> (kind, strictly positive?)
+_SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
+                   "height_mm": ("float", True), "height_scale": ("float", True),
+                   "profile": ("str", False), "max_fill_mm": ("float", False),
+                   "min_prominence_mm": ("float", False), "smooth_mm": ("float", False),
+                   "copies": ("int", True),
+                   "priority": ("int", None)}
+
+
+def sidecar_path(path):
+    """``NAME.yaml`` beside input ``NAME.ext``: Path."""
+    path = Path(path)
+    return path.with_name(path.stem + ".yaml")
+
+
+def load_sidecar(path):
+    """Parse and check a sidecar YAML file: :class:`Sidecar`.
+
+    A missing file gives ``Sidecar()`` (all defaults, ``source=None``).
+    """
+    path = Path(path)
+    if not path.is_file():
+        return Sidecar()
+    src = str(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise InvalidSidecar("not valid YAML: %s" % getattr(exc, "problem", exc),
+                             code="sidecar.yaml", file=src,
+                             where=mark and "line %d" % (mark.line + 1),
+                             fix="fix the YAML syntax, e.g. `size_mm: 150`") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise InvalidSidecar("a sidecar must be a mapping of keys", code="sidecar.type",
+                             file=src, fix="write `key: value` lines, e.g. `size_mm: 150`")
+    vals = {}
+    for key, value in data.items():
+        if key not in _SIDECAR_SCHEMA:
+            raise InvalidSidecar("unknown sidecar key %r" % key, code="sidecar.unknown_key",
+                                 file=src, where=str(key),
+                                 fix="use only: " + ", ".join(_SIDECAR_SCHEMA))
+        kind, positive = _SIDECAR_SCHEMA[key]
+        vals[key] = _sidecar_value(key, value, kind, positive, src)
+    for a, b in (("size_mm", "pixel_mm"), ("height_mm", "height_scale")):
+        if a in vals and b in vals:
+            raise InvalidSidecar("give either %s or %s, not both" % (a, b),
+                                 code="sidecar.conflict", file=src, where=b,
+                                 fix="remove one of them")
+    return Sidecar(**vals, source=src)
+
+
+def _sidecar_value(key, value, kind, positive, src):
+    if kind == "str":
+        if not isinstance(value, str) or not value:
+            raise InvalidSidecar("%s must be a non-empty string, got %r" % (key, value),
+                                 code="sidecar.type", file=src, where=key,
+                                 fix="write e.g. `profile: generic-0.5mm`")
+        return value
+    is_int = isinstance(value, int) and not isinstance(value, bool)
+    if kind == "int" and not is_int:
+        raise InvalidSidecar("%s must be an integer, got %r" % (key, value),
+                             code="sidecar.type", file=src, where=key,
+                             fix="write a whole number")
+    if not (is_int or isinstance(value, float)):
+        raise InvalidSidecar("%s must be a number, got %r" % (key, value),
+                             code="sidecar.type", file=src, where=key,
+                             fix="write a plain number in mm, e.g. `%s: 2.0`" % key)
+    if not np.isfinite(value) or (positive and value <= 0) or (positive is False and value < 0):
+        raise InvalidSidecar("%s = %r is out of range" % (key, value), code="sidecar.value",
+                             file=src, where=key,
+                             fix="use a number %s 0" % (">" if positive else ">="))
+    return int(value) if kind == "int" else float(value)
+
+
+def settings(sidecar, profile=None):
+    """Effective per-file options: sidecar over profile over built-in defaults.
+
+    Returns dict with ``max_fill_mm``, ``min_prominence_mm``, ``smooth_mm``.
+    """
+    vp, mp = (profile.validate, profile.mesh) if profile is not None else (ValidateParams(),
+                                                                           MeshParams())
+    out = {"max_fill_mm": vp.max_fill_mm, "min_prominence_mm": mp.min_prominence_mm,
+           "smooth_mm": mp.smooth_mm}
+    for k in ("max_fill_mm", "min_prominence_mm", "smooth_mm"):
+        if getattr(sidecar, k) is not None:
+            out[k] = getattr(sidecar, k)
+    return out
