@@ -101,11 +101,12 @@ def drop_dome(d, tmp_path, name):
         shutil.copy(f, d.config.drop_dir / f.name)
 
 
+@pytest.mark.slow
 def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         tmp_path, monkeypatch, caplog):
     monkeypatch.setattr(recovery, "FULL_RETRY_S", 0.5)
     # Slow enough that the print is still running when the store fills.
-    d = in_process_daemon(tmp_path, time_scale=0.02)
+    d = in_process_daemon(tmp_path, time_scale=0.008)
     config, pings = d.config, d.notify
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     try:
@@ -145,8 +146,9 @@ def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         d.shutdown()
 
 
+@pytest.mark.slow
 def test_progress_is_written_every_few_seconds_not_every_tick(tmp_path):
-    d = in_process_daemon(tmp_path, time_scale=0.015)
+    d = in_process_daemon(tmp_path, time_scale=0.0075)
     writes = []
     update = d.store.update
 
@@ -169,9 +171,10 @@ def test_progress_is_written_every_few_seconds_not_every_tick(tmp_path):
         d.shutdown()
 
 
+@pytest.mark.slow
 def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_disk(
         tmp_path, caplog):
-    d = in_process_daemon(tmp_path, time_scale=0.02)
+    d = in_process_daemon(tmp_path, time_scale=0.008)
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     drop = d.config.drop_dir
     try:
@@ -203,13 +206,14 @@ def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_di
         d.shutdown()
 
 
+@pytest.mark.slow
 def test_prints_are_fed_from_a_local_copy_of_the_gcode(tmp_path):
     """The outbox is often on the share: a print reads a copy in ``state_dir/spool``,
     which goes when the print ends (and, left by a crash, when the daemon starts)."""
     stale = tmp_path / "state" / "spool" / "left-by-a-crash.gcode"
     stale.parent.mkdir(parents=True)
     stale.write_text("G28\n")
-    d = in_process_daemon(tmp_path, time_scale=0.01)
+    d = in_process_daemon(tmp_path, time_scale=0.003)
     try:
         assert not stale.exists()
         drop_dome(d, tmp_path, "dome.npy")
