@@ -72,6 +72,11 @@ class Config:
     def lock_path(self):
         return self.state_dir / "hostd.pid"
 
+    @property
+    def spool_dir(self):
+        """Local copies of the G-code being printed (the outbox may be on the share)."""
+        return self.state_dir / "spool"
+
     def printer(self, name):
         for p in self.printers:
             if p.name == name:

@@ -63,7 +63,7 @@ class Daemon(ControlMixin, RecoveryMixin):
             Path(d).mkdir(parents=True, exist_ok=True)
         self.store = J.JobStore(c.db_path)
         # Nothing prints before the loop starts: copies left by a crash can go.
-        shutil.rmtree(Path(c.state_dir) / "spool", ignore_errors=True)
+        shutil.rmtree(c.spool_dir, ignore_errors=True)
         self.farm.setup()
         self._recover()
         for slot in self.slots:
@@ -97,8 +97,8 @@ class Daemon(ControlMixin, RecoveryMixin):
 
     def tick(self):
         now = time.monotonic()
-        # A full job database stops everything that starts work (a claimed file must be
-        # recorded, a started plan or print too), never the prints already running.
+        # A full job database or a lost share stops everything that starts work (a claimed
+        # file must be recorded, a started plan or print too), never the prints running.
         writable = self._may_write(now)
         starting = writable and self._share is None
         with self._full_ok(), self._share_ok():
@@ -329,7 +329,7 @@ class Daemon(ControlMixin, RecoveryMixin):
     def _spool(self, job, gcode):
         """A copy of the G-code on the local disk to print from: the outbox is often on the
         share, and a share that goes away mid-print must not starve the printer."""
-        dest = Path(self.config.state_dir) / "spool" / (job["id"] + ".gcode")
+        dest = self.config.spool_dir / (job["id"] + ".gcode")
         part = dest.with_suffix(".part")
         try:
             dest.parent.mkdir(exist_ok=True)
@@ -343,7 +343,7 @@ class Daemon(ControlMixin, RecoveryMixin):
             return gcode
 
     def _unspool(self, job_id):
-        (Path(self.config.state_dir) / "spool" / (job_id + ".gcode")).unlink(missing_ok=True)
+        (self.config.spool_dir / (job_id + ".gcode")).unlink(missing_ok=True)
 
     def _follow_prints(self):
         for slot in self.slots:

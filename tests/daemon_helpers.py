@@ -4,6 +4,7 @@ import contextlib
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -122,3 +123,23 @@ def gcode_commands(path):
 
 def all_files(folder):
     return sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*") if p.is_file())
+
+
+def fill_store(store):
+    """Pin a job store's database at its size and use up the room left in the pages of the
+    tables that grow (events, control requests: the filler requests are answered ones)."""
+    pages = store.db.execute("PRAGMA page_count").fetchone()[0]
+    store.db.execute("PRAGMA max_page_count = %d" % pages)
+    for sql in ("INSERT INTO events (job_id, at, kind, message) VALUES ('filler', 0, 'filler', ?)",
+                "INSERT INTO control (at, action, target, done_at, ok, result) "
+                "VALUES (0, 'filler', '', 0, 1, ?)"):
+        for size in (4000, 1000, 200, 50, 10, 1):
+            try:
+                while True:
+                    store.db.execute(sql, ("x" * size,))
+            except sqlite3.OperationalError as exc:
+                assert "full" in str(exc)
+
+
+def make_room(store):
+    store.db.execute("PRAGMA max_page_count = 1073741823")

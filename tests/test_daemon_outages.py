@@ -11,13 +11,13 @@ unmounted one does (its drop folder is no longer there).
 import dataclasses
 import logging
 import shutil
-import sqlite3
 import time
 from pathlib import Path
 
 import pytest
 
-from daemon_helpers import write_config, write_dome
+from daemon_helpers import fill_store as fill
+from daemon_helpers import make_room, write_config, write_dome
 from hostd import daemon as daemon_mod
 from hostd import jobs as J
 from hostd import recovery
@@ -42,23 +42,6 @@ class Pings:
         pass
 
     status = stopping = ready
-
-
-def fill(store):
-    """Pin the database at its size and use up the room left in its pages."""
-    pages = store.db.execute("PRAGMA page_count").fetchone()[0]
-    store.db.execute("PRAGMA max_page_count = %d" % pages)
-    for size in (4000, 1000, 200, 50, 10, 1):
-        try:
-            while True:
-                store.db.execute("INSERT INTO events (job_id, at, kind, message) "
-                                 "VALUES ('filler', 0, 'filler', ?)", ("x" * size,))
-        except sqlite3.OperationalError as exc:
-            assert "full" in str(exc)
-
-
-def make_room(store):
-    store.db.execute("PRAGMA max_page_count = 1073741823")
 
 
 def run_until(d, predicate, timeout_s=60.0, what="condition"):
@@ -220,7 +203,7 @@ def test_prints_are_fed_from_a_local_copy_of_the_gcode(tmp_path):
         run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
         job_id, slot = d.slots[0].job_id, d.slots[0]
         source = Path(slot.link_job.snapshot()["name"])
-        assert source.parent == d.config.state_dir / "spool"
+        assert source.parent == d.config.spool_dir
         outbox = next(Path(d.store.get(job_id)["outbox"]).glob("*.gcode"))
         assert source.read_bytes() == outbox.read_bytes()
         run_until(d, lambda: d.store.get(job_id)["state"] == J.DONE, timeout_s=120,

@@ -329,3 +329,15 @@ def test_control_estop_and_reorder_handlers(node):
     assert node.store.events(node.printing)[-1]["kind"] == "estop"
     order = [j["id"] for j in node.store.next_in_order(J.QUEUED)]
     assert order == [node.queued2, node.queued]
+
+
+def test_an_action_on_a_full_job_database_is_refused_with_the_reason(node):
+    from daemon_helpers import fill_store
+    fill_store(node.app.config["HOSTD_VIEW"].store)   # the connection this thread's requests use
+    r = node.client.post("/api/jobs/%s/cancel" % node.queued, headers=node.auth())
+    assert r.status_code == 503 and r.json["code"] == "jobs.disk_full"
+    assert "cannot record jobs" in r.json["error"] and "Fix: free space" in r.json["error"]
+    page = node.client.post("/actions/jobs/%s/cancel" % node.queued,
+                            data={"token": TOKEN, "confirm": "yes"})
+    assert page.status_code == 503 and "cannot record jobs" in page.get_data(as_text=True)
+    node.store.close()

@@ -15,6 +15,7 @@ import time
 from flask import Flask, abort, render_template, request
 
 from hostd import jobs as J
+from hostd.errors import HostdError
 from hostd.web import api
 from hostd.web.view import NodeView
 
@@ -82,6 +83,15 @@ def create_app(config, store=None, daemon=None):
     @app.errorhandler(413)
     def too_large(_exc):
         return api.error(413, "the upload is larger than %d MB" % (MAX_UPLOAD_BYTES >> 20))
+
+    @app.errorhandler(HostdError)
+    def refused(exc):
+        # e.g. jobs.disk_full: an action cannot be recorded while the job database is full.
+        status = 503 if exc.code == J.DISK_FULL else 409
+        if request.path.startswith("/api/"):
+            return api.error(status, exc.text(), code=exc.code)
+        return render_template("message.html", title="Not done", ok=False,
+                               message=exc.text()), status
 
     @app.errorhandler(404)
     def not_found(_exc):
