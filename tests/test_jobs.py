@@ -123,3 +123,17 @@ def test_unknown_fields_and_states_are_refused(store):
         store.set_state(jid, "exploded")
     with pytest.raises(sqlite3.Error):
         store.db.execute("SELECT nope FROM jobs")
+
+
+def test_a_terminal_command_on_a_full_job_database_says_so(tmp_path, monkeypatch, capsys):
+    """``hostd cancel`` etc. insert a request: on a full database that is the error shown."""
+    import argparse
+
+    from daemon_helpers import fill_store
+    from hostd.commands import jobs as cli
+    store = J.JobStore(tmp_path / "jobs.sqlite")
+    fill_store(store)
+    monkeypatch.setattr(cli, "_open", lambda args, need_daemon: (None, store, 1234))
+    rc = cli.cmd_action(argparse.Namespace(action="cancel", target="some-job", config=None))
+    err = capsys.readouterr().err
+    assert rc == 2 and "error jobs.disk_full" in err and "Fix: free space" in err

@@ -122,9 +122,9 @@ def cmd_job(args):
 def cmd_action(args):
     try:
         _, store, _ = _open(args, need_daemon=True)
+        req = store.request(args.action, args.target)   # e.g. jobs.disk_full
     except HostdError as exc:
         return _fail(exc)
-    req = store.request(args.action, args.target)
     answer = store.wait_answer(req, timeout_s=WAIT_S)
     if answer is None:
         print("hostd: the daemon did not answer within %.0f s" % WAIT_S, file=sys.stderr)
