@@ -151,6 +151,20 @@ def test_cancel_runs_the_cancel_gcode():
         assert executed == lines[:sent] + cancel
 
 
+def test_closing_the_link_during_a_print_runs_the_cancel_script_first():
+    # Whatever closes the link mid-print (a program exiting, Ctrl-C at the wrong moment),
+    # the heaters must not stay on: the cancel script goes out before the port closes.
+    lines = moves(400, feed_mm_min=600)
+    with sim_and_printer(advanced_ok=True, time_scale=0.25) as (sim, printer):
+        job = printer.start(lines)
+        wait_for(lambda: printer.progress()["confirmed"] >= 30, what="30 lines")
+        printer.close()
+        result = job.snapshot()
+        assert result["result"] == "cancelled"
+        assert result["error"] == "cancelled because the link was closed"
+        assert job_commands(sim) == lines[:result["sent"]] + script(DEFAULT_CANCEL_GCODE)
+
+
 def test_cancel_on_the_printer_cancels_the_job():
     # Marlin's "Stop print" on a host print only sends //action:cancel.
     lines = moves(400, feed_mm_min=600)

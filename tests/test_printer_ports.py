@@ -83,7 +83,8 @@ def test_start_line_continues_an_interrupted_job_and_close_ends_the_job():
         assert job_commands(printer.simulator) == lines[100:]
         assert job.last_confirmed_line == 300
         slow = printer.start(["G1 X10 F60", "G1 X0 F60"])
-    assert slow.wait(5) and slow.result == "interrupted"   # close() ends it, never hangs
+    # close() ends it, never hangs, and runs the cancel script on the way out.
+    assert slow.wait(5) and slow.result == "cancelled"
 
 
 class _ClosedUnderRead:

@@ -27,6 +27,9 @@ from hostd.printer.temps import TemperatureLog
 from hostd.printer.transport import Reader, close_port, open_port
 
 _FATAL_WORDS = ("halted", "kill", "stopped")
+# Closing the link during a print runs the cancel script first, for at most this long
+# (within Printer.close's 5 s join): heaters off and the head lifted, whatever closed it.
+CLOSE_CANCEL_S = 3.0
 
 
 class Driver(Requests, Publisher):
@@ -53,6 +56,8 @@ class Driver(Requests, Publisher):
         self._generation = 0
         self._thread = None
         self._closing = False
+        self._close_at = None        # closing once the cancel script ran (or at this time)
+        self._close_future = None
         self._reconnect_at = None
         self._flow = LineFlow(self.settings, self.stats, 10.0 / self.settings.baud)
         self._reset_stream()
@@ -111,6 +116,10 @@ class Driver(Requests, Publisher):
                             return
                 self._tick()
                 self._pump()
+                if self._close_at is not None and (self.job.result is not None
+                                                   or time.monotonic() >= self._close_at):
+                    self._dispatch(("call", "close", (), self._close_future))
+                    return
             except PortLost as lost:
                 self._lost(str(lost))
                 if self.settings.reconnect and not self._closing:
@@ -136,6 +145,8 @@ class Driver(Requests, Publisher):
 
     def _wait_s(self, now):
         deadlines = [now + 0.5]
+        if self._close_at is not None:
+            deadlines.append(self._close_at)
         if self._reconnect_at is not None:
             deadlines.append(self._reconnect_at)
         if self._serial is not None:
@@ -152,6 +163,8 @@ class Driver(Requests, Publisher):
         if kind == "call":
             _, name, args, future = item
             if name == "close":
+                if self._cancel_before_close(future):
+                    return None
                 self._drop_port()
                 self._set_state(DISCONNECTED)
                 self._finish_job(INTERRUPTED, "link closed")
@@ -181,6 +194,23 @@ class Driver(Requests, Publisher):
         elif kind == "lost":
             raise PortLost(item[2])
         return None
+
+    def _cancel_before_close(self, future):
+        """A print still running when the link closes gets its cancel script first
+        (a close in the middle of a print otherwise leaves the heaters on); True while
+        that is under way."""
+        job = self.job
+        if (self._close_at is not None or job is None or job.result is not None
+                or self._serial is None or self._state == ERROR_STATE):
+            return False
+        try:
+            self._do_cancel()
+        except (PrinterError, PortLost):
+            return False
+        if job.cancelled_by is None:
+            job.cancelled_by = "because the link was closed"
+        self._close_at, self._close_future = time.monotonic() + CLOSE_CANCEL_S, future
+        return True
 
     # -- connection ----------------------------------------------------------------------
 
