@@ -45,7 +45,7 @@ def run(args):
     show = sys.stderr.isatty() and not args.no_progress
     summary = dict(lines=0, bytes=0, resends=0, seconds=0.0, lines_per_s=0.0, link_utilisation=0.0,
                    result="error", error=None)
-    printer = None
+    printer = job = None
     try:
         if show:
             print("hostd stream: connecting to %s at %d baud" % (args.port, args.baud), file=sys.stderr)
@@ -58,9 +58,10 @@ def run(args):
         summary["error"] = str(exc)
         print("hostd stream: %s" % exc, file=sys.stderr)
     except KeyboardInterrupt:
-        # _follow handles Ctrl-C once printing; before that there is nothing to cancel.
-        summary.update(result="cancelled", error="interrupted before printing started")
-        print("\nhostd stream: interrupted before printing started", file=sys.stderr)
+        # _follow handles Ctrl-C once printing; a job just started is cancelled by close().
+        when = "just after printing started" if job is not None else "before printing started"
+        summary.update(result="cancelled", error="interrupted " + when)
+        print("\nhostd stream: interrupted %s" % when, file=sys.stderr)
     finally:
         if printer is not None:
             printer.close()
