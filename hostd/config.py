@@ -61,6 +61,7 @@ class Config:
     lease_s: float = 60.0
     heartbeat_s: float = 5.0
     stop_timeout_s: float = 20.0
+    claim_ahead: int = 2
     planning: PlanningConfig = field(default_factory=PlanningConfig)
     source: str = None
 
@@ -88,7 +89,7 @@ class Config:
 _TOP = {"node_id": (str, None), "drop_dir": (str, None), "state_dir": (str, None),
         "outbox_dir": (str, None), "done_dir": (str, None), "failed_dir": (str, None),
         "settle_s": (float, 0.0), "poll_s": (float, 0.05), "lease_s": (float, 1.0),
-        "heartbeat_s": (float, 0.05), "stop_timeout_s": (float, 1.0)}
+        "heartbeat_s": (float, 0.05), "stop_timeout_s": (float, 1.0), "claim_ahead": (int, 1)}
 _SECTIONS = {"web": WebConfig, "planning": PlanningConfig}
 _LIMITS = {"workers": 1, "time_limit_s": 0.1, "memory_mb": 64, "port": 0, "baud": 1}
 

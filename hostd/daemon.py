@@ -21,6 +21,7 @@ from pathlib import Path, PurePosixPath
 
 from hostd import jobs as J
 from hostd.control import ControlMixin
+from hostd.intake import IntakeMixin
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
 from hostd.lock import DaemonLock
 from hostd.notify import Notifier
@@ -36,7 +37,7 @@ TICK_S = 0.05
 PROGRESS_S = 2.0
 
 
-class Daemon(ControlMixin, RecoveryMixin):
+class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
     def __init__(self, config, notifier=None):
         self.config = config
         self.notify = notifier or Notifier()
@@ -105,8 +106,7 @@ class Daemon(ControlMixin, RecoveryMixin):
             if writable:
                 self._control()
             if starting:
-                for cand in self.watcher.poll(now):
-                    self._intake(cand)
+                self._take_new(now)
                 self._reap_plans()
                 self._start_plans()
             self._follow_prints()
@@ -154,63 +154,6 @@ class Daemon(ControlMixin, RecoveryMixin):
         self._heartbeat(state="stopped")
         self.store.close()
         self.lock.release()
-
-    # -- intake ----------------------------------------------------------------------------------
-
-    def _target_ok(self, target):
-        return target is None or any(target in (s.name, s.config.profile) for s in self.slots)
-
-    def _intake(self, cand):
-        if not self._target_ok(cand.target):
-            if cand.rel_path not in self._skipped:
-                self._skipped.add(cand.rel_path)
-                log.info("%s: folder %r is not a printer or profile of this node; leaving it",
-                         cand.rel_path, cand.target)
-            return
-        claimed = self.farm.claim(cand)
-        if claimed is None:
-            return
-        path, side = claimed
-        self._add_job(cand.path.name, cand.rel_path, path, side, cand.target)
-
-    def _add_job(self, name, rel_path, path, side, target):
-        from pipeline.errors import PipelineError
-        from pipeline.sidecar import load_sidecar
-        values = dict(target=target, node_id=self.config.node_id,
-                      sidecar_path=str(side) if side else None)
-        problem = name_problem(name)
-        if problem:
-            name = path.name
-        try:
-            sidecar = load_sidecar(side) if side else None
-        except PipelineError as exc:
-            job_id = self.store.add(name, rel_path, path, **values)
-            return self._fail(self.store.get(job_id), exc.text(), exc.code)
-        profile = self._profile_for(target, sidecar)
-        values.update(profile=profile, priority=sidecar.priority if sidecar else 0,
-                      copies=sidecar.copies if sidecar else 1)
-        job_id = self.store.add(name, rel_path, path, **values)
-        log.info("job %s: %s claimed (profile %s)", job_id, rel_path, profile)
-        job = self.store.get(job_id)
-        if not any(self._eligible(s, job) for s in self.slots):
-            return self._fail(job, "No printer on node %s uses profile %r%s. Drop the file into "
-                              "a folder named after a printer or profile, or change the "
-                              "sidecar's `profile:`." % (self.config.node_id, profile,
-                                                         " in folder %r" % target if target else ""),
-                              "job.no_printer")
-
-    def _profile_for(self, target, sidecar):
-        if sidecar is not None and sidecar.profile:
-            return sidecar.profile
-        for slot in self.slots:
-            if target in (slot.name, slot.config.profile):
-                return slot.config.profile
-        return self.slots[0].config.profile
-
-    def _eligible(self, slot, job):
-        t = job["target"]
-        return (t is None or t in (slot.name, slot.config.profile)) \
-            and slot.config.profile == job["profile"]
 
     # -- planning --------------------------------------------------------------------------------
 

@@ -164,6 +164,15 @@ class Farm:
                     last_seen_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
         atomic_write(self.nodes_dir / (self.node_id + ".json"), json_text(data))
 
+    def live_peers(self, now=None):
+        """Other nodes whose status file is fresh (within the lease) and not stopped."""
+        now = time.time() if now is None else now
+        return sorted(node for node, data in self.nodes().items()
+                      if node != self.node_id and isinstance(data, dict)
+                      and data.get("state") != "stopped"
+                      and isinstance(data.get("last_seen"), (int, float))
+                      and now - data["last_seen"] < self.lease_s)
+
     def nodes(self):
         out = {}
         for path in sorted(self.nodes_dir.glob("*.json")):

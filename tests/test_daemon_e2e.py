@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon_helpers import (FAST_SIM, all_files, daemon, gcode_commands, hostd, jobs, states,
+from daemon_helpers import (FAST_SIM, all_files, cli_jobs, daemon, gcode_commands, hostd, jobs,
+                            states,
                             wait_for, write_config, write_dome)
 from printer_helpers import job_commands
 
@@ -199,6 +200,9 @@ def test_two_daemons_share_one_drop_folder(tmp_path, dome):
     cfg_b = write_config(tmp_path / "b", node_id="b", share=share)
     names = ["f%02d.npy" % i for i in range(10)]
     with daemon(cfg_a) as a, daemon(cfg_b) as b:
+        status = share / "drop" / ".hostd" / "nodes"
+        wait_for(lambda: {p.stem for p in status.glob("*.json")} == {"a", "b"}, timeout=30,
+                 what="both nodes up", proc=a)
         for name in names:
             drop(dome, share / "drop", name)
 
@@ -209,6 +213,9 @@ def test_two_daemons_share_one_drop_folder(tmp_path, dome):
         assert a.stop() == 0 and b.stop() == 0
     printed = [j["name"] for j in jobs(cfg_a) + jobs(cfg_b)]
     assert sorted(printed) == names           # each exactly once
+    # Neither node hoards the queue: each holds claim_ahead (2) per printer at a time.
+    assert len(jobs(cfg_a)) >= 2 and len(jobs(cfg_b)) >= 2
+    assert cli_jobs(cfg_a) == jobs(cfg_a)     # `hostd jobs --json` shows the same rows
     day = share / "done" / time.strftime("%Y-%m-%d")
     assert sorted(p.name for p in day.glob("*.npy")) == names
     nodes = {p.stem for p in (share / "drop" / ".hostd" / "nodes").glob("*.json")}

@@ -1,0 +1,93 @@
+"""Intake: complete files in the drop folder become this node's jobs.
+
+A mixin of :class:`hostd.daemon.Daemon` (uses its watcher, farm, store and slots). A file
+is claimed (renamed into this node's claim folder) and recorded with its sidecar's options
+and the profile it will be planned with; a node sharing the drop folder with other live
+nodes takes only what it can start soon.
+"""
+
+import logging
+
+from hostd import jobs as J
+from hostd.watcher import name_problem
+
+log = logging.getLogger("hostd.daemon")
+
+
+class IntakeMixin:
+    """From the drop folder to a recorded job."""
+
+    def _take_new(self, now):
+        room = None
+        for cand in self.watcher.poll(now):
+            room = self._claim_room() if room is None else room
+            if room <= 0:
+                self.watcher.forget(cand)   # offered again at the next scan
+            elif self._intake(cand):
+                room -= 1
+
+    def _target_ok(self, target):
+        return target is None or any(target in (s.name, s.config.profile) for s in self.slots)
+
+    def _claim_room(self):
+        """How many more files this node takes now. Alone it takes them all (they show up
+        as jobs at once); with other live nodes on the share it holds ``claim_ahead`` per
+        printer, queued to printing, and leaves the rest in the drop folder for them."""
+        if not self.farm.live_peers():
+            return float("inf")
+        held = len(self.store.list(J.ACTIVE))
+        return self.config.claim_ahead * len(self.slots) - held
+
+    def _intake(self, cand):
+        """Claim and record one complete file; True if this node took it."""
+        if not self._target_ok(cand.target):
+            if cand.rel_path not in self._skipped:
+                self._skipped.add(cand.rel_path)
+                log.info("%s: folder %r is not a printer or profile of this node; leaving it",
+                         cand.rel_path, cand.target)
+            return False
+        claimed = self.farm.claim(cand)
+        if claimed is None:
+            return False
+        path, side = claimed
+        self._add_job(cand.path.name, cand.rel_path, path, side, cand.target)
+        return True
+
+    def _add_job(self, name, rel_path, path, side, target):
+        from pipeline.errors import PipelineError
+        from pipeline.sidecar import load_sidecar
+        values = dict(target=target, node_id=self.config.node_id,
+                      sidecar_path=str(side) if side else None)
+        problem = name_problem(name)
+        if problem:
+            name = path.name
+        try:
+            sidecar = load_sidecar(side) if side else None
+        except PipelineError as exc:
+            job_id = self.store.add(name, rel_path, path, **values)
+            return self._fail(self.store.get(job_id), exc.text(), exc.code)
+        profile = self._profile_for(target, sidecar)
+        values.update(profile=profile, priority=sidecar.priority if sidecar else 0,
+                      copies=sidecar.copies if sidecar else 1)
+        job_id = self.store.add(name, rel_path, path, **values)
+        log.info("job %s: %s claimed (profile %s)", job_id, rel_path, profile)
+        job = self.store.get(job_id)
+        if not any(self._eligible(s, job) for s in self.slots):
+            return self._fail(job, "No printer on node %s uses profile %r%s. Drop the file into "
+                              "a folder named after a printer or profile, or change the "
+                              "sidecar's `profile:`." % (self.config.node_id, profile,
+                                                         " in folder %r" % target if target else ""),
+                              "job.no_printer")
+
+    def _profile_for(self, target, sidecar):
+        if sidecar is not None and sidecar.profile:
+            return sidecar.profile
+        for slot in self.slots:
+            if target in (slot.name, slot.config.profile):
+                return slot.config.profile
+        return self.slots[0].config.profile
+
+    def _eligible(self, slot, job):
+        t = job["target"]
+        return (t is None or t in (slot.name, slot.config.profile)) \
+            and slot.config.profile == job["profile"]
