@@ -11,6 +11,7 @@ import contextlib
 import logging
 import os
 import time
+from pathlib import Path
 
 from hostd import farm as farm_mod
 from hostd import jobs as J
@@ -112,9 +113,10 @@ class RecoveryMixin:
             self._share = exc
 
     def _share_text(self, exc):
-        # Stable wording (no temporary file names): the page reloads when it changes.
-        return "cannot write to the share at %s: %s" % (self.config.drop_dir,
-                                                        exc.strerror or type(exc).__name__)
+        # The folder, not the file: temporary names would change the text at every
+        # heartbeat, and the page reloads when it changes.
+        where = Path(exc.filename).parent if exc.filename else self.config.drop_dir
+        return "cannot write to the share (%s): %s" % (where, exc.strerror or type(exc).__name__)
 
     def _share_back(self):
         if self._share is not None:
