@@ -112,10 +112,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             self._follow_prints()
             if starting:
                 self._dispatch()
-            if writable and self._full is not None and self._full_at < now:
-                self._resync()
-                self._full = None
-                log.info("the job database takes writes again; carrying on")
+            if writable and self._full_at < now:   # no write failed in this tick
+                self._full_back()
         if now >= self._next_beat:
             self._next_beat = now + min(self.config.heartbeat_s, self.notify.watchdog_s or 1e9)
             self._heartbeat()

@@ -118,6 +118,12 @@ class RecoveryMixin:
         where = Path(exc.filename).parent if exc.filename else self.config.drop_dir
         return "cannot write to the share (%s): %s" % (where, exc.strerror or type(exc).__name__)
 
+    def _full_back(self):
+        if self._full is not None:
+            self._resync()
+            self._full = None
+            log.info("the job database takes writes again; carrying on")
+
     def _share_back(self):
         if self._share is not None:
             self._share = None

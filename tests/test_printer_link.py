@@ -184,36 +184,26 @@ def test_cancel_on_the_printer_cancels_the_job():
         assert any(e.kind == "action" and e.data["action"] == "cancel" for e in seen)
 
 
-def test_pause_on_the_printer_pauses_and_resume_continues():
+@pytest.mark.parametrize("pause,resume,park,unpark", [
+    # Pause and resume on the printer's screen: the host parks and unparks with its scripts.
+    ("pause", "resume", DEFAULT_PAUSE_GCODE, DEFAULT_RESUME_GCODE),
+    # //action:paused: the firmware parked on its own (a filament change); the host stops
+    # feeding, sends nothing of its own, and goes on at //action:resumed.
+    ("paused", "resumed", "", "")])
+def test_pause_from_the_printer_stops_the_feed_and_resume_continues(pause, resume, park, unpark):
     lines = moves(300, feed_mm_min=600)
     with sim_and_printer(advanced_ok=True, time_scale=0.15) as (sim, printer):
         printer.start(lines)
         wait_for(lambda: printer.progress()["confirmed"] >= 50, what="50 lines")
-        sim.press("pause")
+        sim.press(pause)
         wait_for(lambda: printer.state == "paused", what="paused from the printer")
         k = printer.progress()["sent"]
-        assert job_commands(sim) == lines[:k] + script(DEFAULT_PAUSE_GCODE)
-        sim.press("resume")
-        assert printer.wait(60)["result"] == "done"
-        assert job_commands(sim) == (lines[:k] + script(DEFAULT_PAUSE_GCODE)
-                                     + script(DEFAULT_RESUME_GCODE) + lines[k:])
-
-
-def test_firmware_that_paused_itself_gets_no_park_script():
-    # //action:paused: the firmware parked on its own (a filament change); the host
-    # stops feeding, sends nothing of its own, and goes on at //action:resumed.
-    lines = moves(300, feed_mm_min=600)
-    with sim_and_printer(advanced_ok=True, time_scale=0.15) as (sim, printer):
-        printer.start(lines)
-        wait_for(lambda: printer.progress()["confirmed"] >= 50, what="50 lines")
-        sim.press("paused")
-        wait_for(lambda: printer.state == "paused", what="paused by the firmware")
-        k = printer.progress()["sent"]
         time.sleep(0.2)
-        assert printer.progress()["sent"] == k and job_commands(sim) == lines[:k]
-        sim.press("resumed")
+        assert printer.progress()["sent"] == k
+        assert job_commands(sim) == lines[:k] + script(park)
+        sim.press(resume)
         assert printer.wait(60)["result"] == "done"
-        assert job_commands(sim) == lines
+        assert job_commands(sim) == lines[:k] + script(park) + script(unpark) + lines[k:]
 
 
 def test_emergency_stop_reaches_firmware_quickly_with_full_queue(record_property):
