@@ -115,8 +115,34 @@ class RecoveryMixin:
     def _share_text(self, exc):
         # The folder, not the file: temporary names would change the text at every
         # heartbeat, and the page reloads when it changes.
-        where = Path(exc.filename).parent if exc.filename else self.config.drop_dir
+        where = " or ".join(str(f) for f in self._share_folders(exc))
         return "cannot write to the share (%s): %s" % (where, exc.strerror or type(exc).__name__)
+
+    def _share_folders(self, exc):
+        """The folders a failed share operation wrote to (a move names two)."""
+        names = [n for n in (exc.filename, getattr(exc, "filename2", None)) if n]
+        return list(dict.fromkeys(Path(os.fsdecode(n)).parent for n in names)) or \
+            [self.config.drop_dir]
+
+    def _share_takes_writes(self):
+        """Whether every folder the outage's failure named takes a small file again.
+
+        The lease renewing is not enough: it is one folder, and a folder such as done/ can
+        refuse files (permissions, quota, a file in its place) while the lease renews, so
+        the outage would end and begin again at every heartbeat. A folder no longer there
+        is tried through the nearest one that is (a claim folder emptied meanwhile), since
+        a share that is not mounted already fails the lease.
+        """
+        for folder in self._share_folders(self._share):
+            while not folder.exists() and folder.parent != folder:
+                folder = folder.parent
+            probe = folder / (".hostd-probe-%s" % self.config.node_id)
+            try:
+                probe.write_bytes(b"hostd\n")
+                probe.unlink()
+            except OSError:
+                return False
+        return True
 
     def _full_back(self):
         if self._full is not None:
@@ -125,7 +151,7 @@ class RecoveryMixin:
             log.info("the job database takes writes again; carrying on")
 
     def _share_back(self):
-        if self._share is not None:
+        if self._share is not None and self._share_takes_writes():
             self._share = None
             log.info("the share takes writes again; carrying on")
             with self._full_ok():

@@ -211,3 +211,39 @@ def test_prints_are_fed_from_a_local_copy_of_the_gcode(tmp_path):
         assert not source.exists()
     finally:
         d.shutdown()
+
+
+@pytest.mark.slow
+def test_a_share_folder_that_stays_unwritable_is_told_once_not_at_every_heartbeat(
+        tmp_path, caplog):
+    """The lease renews but done/ takes no file (its permissions, a full quota, here a
+    file in its place): the outage lasts until done/ takes a write, told once; it used
+    to end and start again at every heartbeat, two log lines each time."""
+    d = in_process_daemon(tmp_path, time_scale=0.002)
+    caplog.set_level(logging.INFO, logger="hostd.daemon")
+    done = d.config.done_dir
+    try:
+        drop_dome(d, tmp_path, "dome.npy")
+        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
+        job_id = d.slots[0].job_id
+        shutil.rmtree(done)
+        done.write_text("not a folder\n")
+        run_until(d, lambda: d.problem is not None, timeout_s=120,
+                  what="the print to end and done/ to refuse it")
+        assert str(done) in d.problem
+        deadline = time.monotonic() + 5 * d.config.heartbeat_s
+        while time.monotonic() < deadline:
+            d.tick()
+            assert d.problem is not None, "the outage must last while done/ takes nothing"
+            time.sleep(0.02)
+        told = [r for r in caplog.records if "cannot write to the share" in r.getMessage()]
+        assert len(told) == 1 and "takes writes again" not in caplog.text
+        assert d.store.get(job_id)["state"] == J.PRINTING   # not recorded before it is filed
+
+        done.unlink()
+        done.mkdir()
+        run_until(d, lambda: d.store.get(job_id)["state"] == J.DONE, what="the print filed")
+        assert d.problem is None and caplog.text.count("share takes writes again") == 1
+        assert done in Path(d.store.get(job_id)["input_path"]).parents
+    finally:
+        d.shutdown()
