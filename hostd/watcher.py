@@ -115,7 +115,7 @@ class Watcher:
         self._reported = set()
         self._next_scan = 0.0
         self._observer = None
-        self.rejected = {}       # rel path -> reason (odd names, unknown targets)
+        self.inputs = []         # (rel path, bytes, complete) of the inputs at the last scan
 
     def start(self):
         """Start watchdog if it can watch this folder; the scan works without it."""
@@ -202,6 +202,11 @@ class Watcher:
             if key not in present:
                 del self._seen[key]
                 self._reported.discard(key)
+        # What people see waiting in the drop folder (a file still being copied, or one
+        # left for other nodes): replaced whole, read by the web threads.
+        self.inputs = [(rel, self._seen[str(path)][0], states[str(path)])
+                       for path, rel, _, _ in files
+                       if path.suffix.lower() in INPUT_SUFFIXES and str(path) in states]
         out = []
         for path, rel, target, _ in files:
             key = str(path)

@@ -1,6 +1,7 @@
 """Helpers for the daemon end-to-end tests: inputs, configs, daemon processes, simulators."""
 
 import contextlib
+import dataclasses
 import json
 import os
 import signal
@@ -12,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from hostd import daemon as daemon_mod
+from hostd.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST_SIM = dict(time_scale=0.0, advanced_ok=True, boot_s=0.0, baud=2000000)
@@ -159,3 +163,32 @@ def fill_store(store):
 
 def make_room(store):
     store.db.execute("PRAGMA max_page_count = 1073741823")
+
+
+class Pings:
+    """A notifier that counts watchdog pings."""
+
+    watchdog_s = None
+    enabled = True
+
+    def __init__(self):
+        self.watchdog_pings = 0
+
+    def watchdog(self):
+        self.watchdog_pings += 1
+
+    def ready(self, *a):
+        pass
+
+    status = stopping = ready
+
+
+def in_process_daemon(tmp_path, time_scale, **extra):
+    """A daemon in this process with one simulated printer (no web server), set up."""
+    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000,
+                 "port": "sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale}]
+    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2, **extra))
+    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
+    d = daemon_mod.Daemon(config, notifier=Pings())
+    d.setup()
+    return d

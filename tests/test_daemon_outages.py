@@ -8,7 +8,6 @@ it does on a full disk ("database or disk is full"); the share goes away the way
 unmounted one does (its drop folder is no longer there).
 """
 
-import dataclasses
 import logging
 import shutil
 import time
@@ -17,31 +16,12 @@ from pathlib import Path
 import pytest
 
 from daemon_helpers import fill_store as fill
-from daemon_helpers import make_room, write_config, write_dome
+from daemon_helpers import in_process_daemon, make_room, write_dome
 from hostd import daemon as daemon_mod
 from hostd import jobs as J
 from hostd import recovery
-from hostd.config import load_config
 from hostd.errors import HostdError
 from hostd.web.app import create_app
-
-
-class Pings:
-    """A notifier that counts watchdog pings."""
-
-    watchdog_s = None
-    enabled = True
-
-    def __init__(self):
-        self.watchdog_pings = 0
-
-    def watchdog(self):
-        self.watchdog_pings += 1
-
-    def ready(self, *a):
-        pass
-
-    status = stopping = ready
 
 
 def run_until(d, predicate, timeout_s=60.0, what="condition"):
@@ -65,17 +45,6 @@ def test_the_store_maps_sqlite_full_to_its_own_code(tmp_path):
     make_room(store)
     store.set_state(job_id, J.DONE, "printed")
     assert store.get(job_id)["state"] == J.DONE
-
-
-def in_process_daemon(tmp_path, time_scale):
-    """A daemon in this process with one simulated printer (no web server), set up."""
-    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000,
-                 "port": "sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale}]
-    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
-    d = daemon_mod.Daemon(config, notifier=Pings())
-    d.setup()
-    return d
 
 
 def drop_dome(d, tmp_path, name):

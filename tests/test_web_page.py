@@ -3,7 +3,9 @@
 import json
 import time
 
+from daemon_helpers import in_process_daemon, write_dome
 from hostd.outputs import atomic_write
+from hostd.web.app import create_app
 from hostd.web import server
 from test_web_api import TOKEN, Node, make_config
 from web_helpers import get_json
@@ -75,3 +77,39 @@ def test_waitress_serves_and_stops(tmp_path):
     finally:
         web.stop()
     assert not web.thread.is_alive()
+
+
+def test_page_shows_inputs_in_the_drop_folder_that_are_no_job_yet(tmp_path):
+    """A file being copied, and one left for another node, are on the page and in
+    /api/status; a file claimed leaves the list for the queue."""
+    d = in_process_daemon(tmp_path, time_scale=0, settle_s=0.5)
+    client = create_app(d.config, store=d.store, daemon=d).test_client()
+    drop = d.config.drop_dir
+    try:
+        write_dome(drop / "elsewhere" / "left.npy")     # no printer or profile of this node
+        deadline = time.monotonic() + 10
+        while ("elsewhere/left.npy", True) not in {i[::2] for i in d.watcher.inputs}:
+            assert time.monotonic() < deadline, d.watcher.inputs
+            d.tick()
+            time.sleep(0.05)
+        write_dome(drop / "new.npy")
+        d.watcher.wake.set()
+        d.tick()
+        status = client.get("/api/status").get_json()
+        assert {(f["file"], f["complete"]) for f in status["drop_folder"]} == {
+            ("elsewhere/left.npy", True), ("new.npy", False)}
+        assert all(f["bytes"] > 0 for f in status["drop_folder"])
+        html = client.get("/").get_data(as_text=True)
+        assert "new.npy" in html and "still being copied" in html
+        assert "elsewhere/left.npy" in html and "waiting for a printer" in html
+
+        deadline = time.monotonic() + 10
+        while not d.store.list():
+            assert time.monotonic() < deadline
+            d.tick()
+            time.sleep(0.05)
+        after = client.get("/api/status").get_json()
+        assert [f["file"] for f in after["drop_folder"]] == ["elsewhere/left.npy"]
+        assert after["signature"] != status["signature"]
+    finally:
+        d.shutdown()

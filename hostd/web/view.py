@@ -257,11 +257,24 @@ class NodeView:
                         ",".join("%s:%s" % (j["id"], j["state"]) for j in queue),
                         ",".join("%s:%s" % (j["id"], j["state"]) for j in recent[:5])])
         problem = self.daemon.problem if self.daemon is not None else None
-        sig += ";" + (problem or "")
+        dropped = self.drop_folder()
+        sig += ";" + (problem or "") + ";" + ",".join(
+            "%s:%d" % (f["file"], f["complete"]) for f in dropped)
         return {"node_id": self.config.node_id, "version": __version__, "time": time.time(),
                 "daemon": self.daemon is not None, "problem": problem, "printers": printers,
-                "queue": queue, "recent": recent, "signature": sig,
+                "queue": queue, "recent": recent, "signature": sig, "drop_folder": dropped,
                 "counts": self.counts(), "token_configured": bool(self.config.web.token)}
+
+    def drop_folder(self):
+        """Inputs in the drop folder that are no job yet: still being copied, or left there
+        for whichever node has a printer free (a node with live peers takes only what it
+        can start soon). From the daemon's last scan, less what was claimed since."""
+        if self.daemon is None:
+            return []
+        drop = Path(self.config.drop_dir)
+        return [{"file": rel, "bytes": size, "complete": complete}
+                for rel, size, complete in self.daemon.watcher.inputs
+                if os.path.exists(drop / rel)]
 
     def nodes(self, stale_s=None):
         """Every node's status file on the share, with ``stale`` and ``age_s``."""
