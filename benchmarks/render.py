@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline import render, shapes  # noqa: E402
+from pipeline import hfimage, render, shapes  # noqa: E402
 from pipeline.geometry import unique_edges  # noqa: E402
 from pipeline.plyio import write_ply  # noqa: E402
 
@@ -75,7 +75,7 @@ def main(quick=False):
         repeat)}
     hf = shapes.three_islands(pixel_mm=0.5)
     out["heightfield"] = {"shape": list(hf.z.shape), "seconds": best(
-        lambda: render.heightfield_image(hf.z, [], hf.pixel_mm), repeat)}
+        lambda: hfimage.heightfield_image(hf.z, [], hf.pixel_mm), repeat)}
     out["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     print(json.dumps(out, indent=1))
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from hostd.outputs import Staging, atomic_write, json_text
-from pipeline import figure, gcode, plyio, render, texture
+from pipeline import figure, gcode, hfimage, plyio, render, texture
 from pipeline.errors import PipelineError
 from pipeline.plan import plan_file
 
@@ -106,7 +106,7 @@ def write_outputs(st, plan):
         title="%s (%.0f mm): target vs. simulated after shrinking" % (name, diameter)))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
-    st.write_image(name + ".input.png", render.heightfield_image(
+    st.write_image(name + ".input.png", hfimage.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed)" % (name, count),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))

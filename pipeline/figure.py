@@ -34,6 +34,7 @@ INVALID_HIGH = (225, 0, 215)  # needs more shrink than the material gives
 INVALID_LOW = (20, 20, 20)    # would need to expand
 INK = (35, 35, 40)
 MUTED = (105, 105, 112)
+WHITE = 255.0
 
 
 def colormap(values, vmin, vmax, name="shrink"):
@@ -212,3 +213,17 @@ def framed(body, title, subtitle="", legend_w=230, legend_min_h=420, footer_h=56
     by = title_h + (max(bh, legend_min_h) - bh) // 2
     fig.paste(body, (pad, by))
     return fig, (pad, by), (w - legend_w, title_h), (pad, title_h + max(bh, legend_min_h)), fs
+
+
+def to_image(canvas):
+    """(h, w, 3) float canvas, 0-255 -> RGB ``PIL.Image``."""
+    return Image.fromarray(np.clip(np.round(canvas), 0, 255).astype(np.uint8))
+
+
+def stat_lines(img, x, y, lines, fs):
+    """Muted text lines under a legend; returns the y below them."""
+    draw = ImageDraw.Draw(img)
+    for s in lines:
+        draw.text((x, y), s, font=font(fs - 1), fill=MUTED)
+        y += int(fs * 1.45)
+    return y

@@ -1,4 +1,4 @@
-"""The pictures of a plan: stress layout, 3-D preview, tool paths, input height field.
+"""The pictures of a plan: stress layout, 3-D preview, tool paths (the input: :mod:`pipeline.hfimage`).
 
 numpy + Pillow only (no display, no matplotlib); arrays in, ``PIL.Image`` out.
 Drawing is vectorised in :mod:`pipeline.raster`; legends and bars in
@@ -11,19 +11,17 @@ caller can overlay or hit-test in millimetres.
 import numpy as np
 from PIL import Image, ImageDraw
 
-from pipeline.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, colorbar, colormap, font,
-                             fmt_number, framed, nice_ceil, scale_bar, swatch, text_size)
+from pipeline.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, WHITE, colorbar, colormap,
+                             font, fmt_number, framed, nice_ceil, scale_bar, stat_lines, swatch,
+                             text_size, to_image)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
 from pipeline.raster import dash_segments, draw_segments, rasterize_triangles
 from pipeline.shading import camera_basis, project, shaded_view, view_fit
 
-__all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "heightfield_image",
-           "montage", "shaded_view"]
+__all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "montage", "shaded_view"]
 
-_WHITE = 255.0
 START_COLOR = (40, 185, 80)
 TRAVEL_COLOR = (110, 110, 118)
-PEAK_COLOR = (215, 25, 35)
 
 
 class _Plan:
@@ -53,10 +51,6 @@ def _scale(extent_mm, px_per_mm, max_px, long_px=1400):
     return min(s, max_px / ext)
 
 
-def _to_image(canvas):
-    return Image.fromarray(np.clip(np.round(canvas), 0, 255).astype(np.uint8))
-
-
 def _boundary_edges(faces):
     """Edges used by exactly one face: (k, 2) int."""
     e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
@@ -80,14 +74,6 @@ def _invalid_texts(n_high, n_low, total, s_min, s_max, what):
 def _invalid_legend(img, x, y, texts, fs):
     y = swatch(img, x, y, INVALID_HIGH, texts[0], fs)
     return swatch(img, x, y, INVALID_LOW, texts[1], fs)
-
-
-def _stat_lines(img, x, y, lines, fs):
-    draw = ImageDraw.Draw(img)
-    for s in lines:
-        draw.text((x, y), s, font=font(fs - 1), fill=MUTED)
-        y += int(fs * 1.45)
-    return y
 
 
 def _split_by_validity(sigma, s_min, s_max):
@@ -161,7 +147,7 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     lo, hi = xy.min(0), xy.max(0)
     size = hi - lo
     plan = _Plan(lo, hi, _scale(size.max(), px_per_mm, max_px), pad=12)
-    canvas = np.full((plan.h, plan.w, 3), _WHITE)
+    canvas = np.full((plan.h, plan.w, 3), WHITE)
     p = plan.px(xy)
     total_len = float(edge_lengths(xy, edges).sum()) if len(edges) else 0.0
     area = float(face_areas(xy, faces).sum()) if faces is not None else 0.6 * float(size.prod())
@@ -188,14 +174,14 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     sub = (f"flat layout {size[0]:.1f} x {size[1]:.1f} mm  |  {n} printing edges  |  "
            f"invalid {100 * (high.sum() + low.sum()) / max(n, 1):.1f} %")
     texts = _invalid_texts(int(high.sum()), int(low.sum()), n, s_min, s_max, "edges")
-    fig, bxy, (lx, ly), (fx, fy), fs = framed(_to_image(canvas), title or "shrink ratio", sub,
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(to_image(canvas), title or "shrink ratio", sub,
                                               legend_texts=texts)
     _, yb = colorbar(fig, lx, ly, 26, min(360, max(200, plan.h // 2)), "shrink", s_min, s_max,
                      "shrink (%)", scale=100, fs=fs)
     y = _invalid_legend(fig, lx, yb + fs, texts, fs)
     if len(good):
         q = np.percentile(good, [5, 95])
-        _stat_lines(fig, lx, y + fs // 2, [f"mean {_pct(good.mean())} %",
+        stat_lines(fig, lx, y + fs // 2, [f"mean {_pct(good.mean())} %",
                                            f"p05-p95 {_pct(q[0])}-{_pct(q[1])} %",
                                            f"min {_pct(good.min())}, max {_pct(good.max())} %"], fs)
     scale_bar(fig, bxy[0] + 12, fy + fs, plan.s, min(0.3 * plan.w, 600), fs)
@@ -245,7 +231,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     lo, hi = pts.min(0), pts.max(0)
     size = hi - lo
     plan = _Plan(lo, hi, _scale(size.max(), px_per_mm, max_px), pad=16)
-    canvas = np.full((plan.h, plan.w, 3), _WHITE)
+    canvas = np.full((plan.h, plan.w, 3), WHITE)
     lw = 0.7 * path_width_mm * plan.s
     high, low, ok = _split_by_validity(sig, s_min, s_max)
     col = _sigma_colors(sig, s_min, s_max)
@@ -259,7 +245,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     sp = plan.px(starts)
     draw_segments(canvas, sp, sp, INK, d + 3)
     draw_segments(canvas, sp, sp, START_COLOR, d)
-    body = _to_image(canvas)
+    body = to_image(canvas)
     if 0 < len(traces) <= 40:  # numbered in printing order while the numbers stay legible
         draw = ImageDraw.Draw(body)
         for k, q in enumerate(sp):
@@ -277,7 +263,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     y = _invalid_legend(fig, lx, yb + fs, texts, fs)
     y = swatch(fig, lx, y, START_COLOR, "trace start (numbered)", fs, shape="dot")
     y = swatch(fig, lx, y, TRAVEL_COLOR, "travel move", fs, shape="dash")
-    _stat_lines(fig, lx, y + fs // 2, [f"path width {fmt_number(path_width_mm, 0.01)} mm",
+    stat_lines(fig, lx, y + fs // 2, [f"path width {fmt_number(path_width_mm, 0.01)} mm",
                                        "(drawn at 70 %)"], fs)
     scale_bar(fig, bxy[0] + 16, fy + fs, plan.s, min(0.3 * plan.w, 600), fs)
     return plan.tag(fig, bxy)
@@ -352,115 +338,6 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
              "displacement (mm)", fs=fs)
     x = scale_bar(fig, bxy[0] + 20, fy + 12, fit[1], 0.35 * pw, fs)
     ImageDraw.Draw(fig).text((x + 8, fy + 6), "(across the view)", font=font(fs - 3), fill=MUTED)
-    return fig
-
-
-def _fill_nearest(z):
-    from scipy import ndimage
-
-    bad = ~np.isfinite(z)
-    if not bad.any():
-        return z
-    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
-    return z[tuple(idx)]
-
-
-def _hillshade(z, pixel_mm, azimuth_deg=315.0, altitude_deg=45.0):
-    """Lambertian hillshade (0..1) of a grid in mm; light from the north-west by default."""
-    gy, gx = np.gradient(z, pixel_mm)  # rows run south, so -gy is the northward slope
-    nx, ny, nz = -gx, gy, np.ones_like(z)
-    norm = np.sqrt(nx * nx + ny * ny + 1.0)
-    az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
-    lx, ly, lz = np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)
-    return np.clip((nx * lx + ny * ly + nz * lz) / norm, 0.0, 1.0)
-
-
-def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_mm=None,
-                      long_px=900, removed_count=None):
-    """Hillshaded height field with isolines and the peaks that simplification removed.
-
-    Parameters
-    ----------
-    z : (rows, cols) float, mm
-        Heights, NaN outside the footprint; row 0 is north.
-    removed_peaks : iterable of dict with ``x_mm``, ``y_mm``, ``prominence_mm``
-        Positions as in :class:`pipeline.geometry.HeightField` (x = col * pixel_mm,
-        y = (rows - 1 - row) * pixel_mm); drawn as red rings sized by prominence.
-    pixel_mm : float
-    title : str
-    isoline_step_mm : float, optional
-        Isoline spacing; default a round step giving ~12 lines. Every fifth is bold.
-    long_px : int
-        Longest side of the picture.
-    removed_count : int, optional
-        How many peaks were removed in all, when ``removed_peaks`` lists only the
-        most prominent ones.
-
-    Returns
-    -------
-    PIL.Image with ``info["px_per_mm"]`` and ``info["origin_px"]``.
-    """
-    import contourpy
-
-    z = np.asarray(z, dtype=np.float64)
-    rows, cols = z.shape
-    valid = np.isfinite(z)
-    zf = np.nan_to_num(_fill_nearest(z), nan=0.0)
-    zmax = float(np.nanmax(z)) if valid.any() else 1.0
-    zmin = float(np.nanmin(z)) if valid.any() else 0.0
-    f = long_px / max(rows, cols)  # display px per grid sample
-    W, H = int(round(cols * f)), int(round(rows * f))
-    # Shade the bicubically resampled heights, not the samples: shading coarse
-    # samples and enlarging the result shows every sample as a facet.
-    zb = np.asarray(Image.fromarray(zf.astype(np.float32), "F").resize((W, H), Image.BICUBIC),
-                    np.float64)
-    shade = _hillshade(zb, pixel_mm * cols / W)
-    rgb = colormap(zb, zmin, zmax, "height") * (0.45 + 0.65 * shade[..., None])
-    # The footprint's edge is the 0.5 level of the bilinearly enlarged mask, with a
-    # 1 px ramp: smooth diagonals instead of sample-sized stair steps.
-    mask = Image.fromarray(valid.astype(np.float32), "F").resize((W, H), Image.BILINEAR)
-    a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)[..., None]
-    canvas = np.clip(rgb, 0, 255) * a + _WHITE * (1 - a)
-
-    step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
-    levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)
-    if len(levels):
-        gen = contourpy.contour_generator(z=np.ma.masked_invalid(z), line_type="SeparateCode")
-        for k, lev in enumerate(levels):
-            segs = [line for line in gen.lines(lev)[0] if len(line) > 1]
-            if not segs:
-                continue
-            q0 = np.concatenate([s[:-1] for s in segs])
-            q1 = np.concatenate([s[1:] for s in segs])
-            bold = abs(lev / step / 5 - round(lev / step / 5)) < 1e-6
-            draw_segments(canvas, (q0 + 0.5) * f, (q1 + 0.5) * f, (70, 52, 40),
-                          1.5 if bold else 0.8)
-    peaks = list(removed_peaks)
-    if peaks:
-        c = np.array([[p["x_mm"] / pixel_mm, rows - 1 - p["y_mm"] / pixel_mm] for p in peaks])
-        prom = np.array([float(p.get("prominence_mm", 0.0)) for p in peaks])
-        r = 6.0 + 4.0 * np.sqrt(np.maximum(prom, 0))
-        ang = np.linspace(0, 2 * np.pi, 33)
-        ring = (c[:, None, :] + 0.5) * f + r[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)
-        draw_segments(canvas, ring[:, :-1].reshape(-1, 2), ring[:, 1:].reshape(-1, 2),
-                      PEAK_COLOR, 2.5)
-    plan_s = f / pixel_mm
-    sub = (f"{cols * pixel_mm:.0f} x {rows * pixel_mm:.0f} mm  |  height {zmin:.1f}-{zmax:.1f} mm  |  "
-           f"{cols} x {rows} samples at {fmt_number(pixel_mm, 0.01)} mm")
-    fig, bxy, (lx, ly), (fx, fy), fs = framed(_to_image(canvas), title or "height field", sub,
-                                              legend_w=250, legend_min_h=360)
-    _, yb = colorbar(fig, lx, ly, 26, min(300, max(180, H // 2)), "height", zmin, zmax,
-                     "height (mm)", fs=fs)
-    y = swatch(fig, lx, yb + fs, (70, 52, 40), f"isolines every {fmt_number(step)} mm", fs)
-    total = max(int(removed_count or 0), len(peaks))
-    if total:
-        shown = "" if total == len(peaks) else f" ({len(peaks)} shown)"
-        y = swatch(fig, lx, y, PEAK_COLOR, f"{total} peaks simplified{shown}", fs, shape="ring")
-        lines = [f"prominence <= {prom.max():.1f} mm"] if peaks else []
-        _stat_lines(fig, lx, y, lines + ["(not reproduced)"], fs)
-    scale_bar(fig, bxy[0], fy + fs, plan_s, min(0.4 * W, 300), fs)
-    fig.info["px_per_mm"] = plan_s
-    fig.info["origin_px"] = (bxy[0] + 0.5 * f, bxy[1] + (rows - 0.5) * f)
     return fig
 
 

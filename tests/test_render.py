@@ -9,7 +9,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from pipeline import render, shapes
+from pipeline import hfimage, render, shapes
 from pipeline.figure import INVALID_HIGH, INVALID_LOW
 from pipeline.plyio import write_ply
 from pipeline.raster import draw_segments, pixel_barycentrics, rasterize_triangles
@@ -219,7 +219,7 @@ def test_heightfield_image_rings_the_removed_peaks():
     hf = shapes.three_islands(diameter_mm=100, pixel_mm=1.0)
     rows = hf.z.shape[0]
     peak = {"x_mm": 50.0, "y_mm": 50.0, "prominence_mm": 4.0}
-    img = render.heightfield_image(hf.z, [peak], hf.pixel_mm, title="three islands")
+    img = hfimage.heightfield_image(hf.z, [peak], hf.pixel_mm, title="three islands")
     assert not_blank(img)
     s = img.info["px_per_mm"]
     ox, oy = img.info["origin_px"]
@@ -240,7 +240,7 @@ def test_heightfield_image_on_real_terrain():
         pytest.skip("../shared terrain data not available")
     raw = np.asarray(Image.open(png)).astype(np.float64)
     z = raw / 65535.0 * 42.3
-    img = render.heightfield_image(z, [], 0.5202, title="coast mountains")
+    img = hfimage.heightfield_image(z, [], 0.5202, title="coast mountains")
     assert not_blank(img, 500)
     assert max(img.size) >= 900
 

@@ -1,0 +1,124 @@
+"""The picture of an input: its height field hillshaded, with isolines and the peaks
+that simplification removed (``NAME.input.png``).
+
+numpy + Pillow (+ contourpy for the isolines); top view with +y (north) up and the
+mm-to-pixel map in ``image.info`` like :mod:`pipeline.render`'s pictures.
+"""
+
+import numpy as np
+from PIL import Image
+
+from pipeline.figure import (WHITE, colorbar, colormap, fmt_number, framed, nice_ceil, scale_bar,
+                             stat_lines, swatch, to_image)
+from pipeline.raster import draw_segments
+
+PEAK_COLOR = (215, 25, 35)
+
+
+def _fill_nearest(z):
+    from scipy import ndimage
+
+    bad = ~np.isfinite(z)
+    if not bad.any():
+        return z
+    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+    return z[tuple(idx)]
+
+
+def _hillshade(z, pixel_mm, azimuth_deg=315.0, altitude_deg=45.0):
+    """Lambertian hillshade (0..1) of a grid in mm; light from the north-west by default."""
+    gy, gx = np.gradient(z, pixel_mm)  # rows run south, so -gy is the northward slope
+    nx, ny, nz = -gx, gy, np.ones_like(z)
+    norm = np.sqrt(nx * nx + ny * ny + 1.0)
+    az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
+    lx, ly, lz = np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)
+    return np.clip((nx * lx + ny * ly + nz * lz) / norm, 0.0, 1.0)
+
+
+def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_mm=None,
+                      long_px=900, removed_count=None):
+    """Hillshaded height field with isolines and the peaks that simplification removed.
+
+    Parameters
+    ----------
+    z : (rows, cols) float, mm
+        Heights, NaN outside the footprint; row 0 is north.
+    removed_peaks : iterable of dict with ``x_mm``, ``y_mm``, ``prominence_mm``
+        Positions as in :class:`pipeline.geometry.HeightField` (x = col * pixel_mm,
+        y = (rows - 1 - row) * pixel_mm); drawn as red rings sized by prominence.
+    pixel_mm : float
+    title : str
+    isoline_step_mm : float, optional
+        Isoline spacing; default a round step giving ~12 lines. Every fifth is bold.
+    long_px : int
+        Longest side of the picture.
+    removed_count : int, optional
+        How many peaks were removed in all, when ``removed_peaks`` lists only the
+        most prominent ones.
+
+    Returns
+    -------
+    PIL.Image with ``info["px_per_mm"]`` and ``info["origin_px"]``.
+    """
+    import contourpy
+
+    z = np.asarray(z, dtype=np.float64)
+    rows, cols = z.shape
+    valid = np.isfinite(z)
+    zf = np.nan_to_num(_fill_nearest(z), nan=0.0)
+    zmax = float(np.nanmax(z)) if valid.any() else 1.0
+    zmin = float(np.nanmin(z)) if valid.any() else 0.0
+    f = long_px / max(rows, cols)  # display px per grid sample
+    W, H = int(round(cols * f)), int(round(rows * f))
+    # Shade the bicubically resampled heights, not the samples: shading coarse
+    # samples and enlarging the result shows every sample as a facet.
+    zb = np.asarray(Image.fromarray(zf.astype(np.float32), "F").resize((W, H), Image.BICUBIC),
+                    np.float64)
+    shade = _hillshade(zb, pixel_mm * cols / W)
+    rgb = colormap(zb, zmin, zmax, "height") * (0.45 + 0.65 * shade[..., None])
+    # The footprint's edge is the 0.5 level of the bilinearly enlarged mask, with a
+    # 1 px ramp: smooth diagonals instead of sample-sized stair steps.
+    mask = Image.fromarray(valid.astype(np.float32), "F").resize((W, H), Image.BILINEAR)
+    a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)[..., None]
+    canvas = np.clip(rgb, 0, 255) * a + WHITE * (1 - a)
+
+    step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
+    levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)
+    if len(levels):
+        gen = contourpy.contour_generator(z=np.ma.masked_invalid(z), line_type="SeparateCode")
+        for k, lev in enumerate(levels):
+            segs = [line for line in gen.lines(lev)[0] if len(line) > 1]
+            if not segs:
+                continue
+            q0 = np.concatenate([s[:-1] for s in segs])
+            q1 = np.concatenate([s[1:] for s in segs])
+            bold = abs(lev / step / 5 - round(lev / step / 5)) < 1e-6
+            draw_segments(canvas, (q0 + 0.5) * f, (q1 + 0.5) * f, (70, 52, 40),
+                          1.5 if bold else 0.8)
+    peaks = list(removed_peaks)
+    if peaks:
+        c = np.array([[p["x_mm"] / pixel_mm, rows - 1 - p["y_mm"] / pixel_mm] for p in peaks])
+        prom = np.array([float(p.get("prominence_mm", 0.0)) for p in peaks])
+        r = 6.0 + 4.0 * np.sqrt(np.maximum(prom, 0))
+        ang = np.linspace(0, 2 * np.pi, 33)
+        ring = (c[:, None, :] + 0.5) * f + r[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)
+        draw_segments(canvas, ring[:, :-1].reshape(-1, 2), ring[:, 1:].reshape(-1, 2),
+                      PEAK_COLOR, 2.5)
+    plan_s = f / pixel_mm
+    sub = (f"{cols * pixel_mm:.0f} x {rows * pixel_mm:.0f} mm  |  height {zmin:.1f}-{zmax:.1f} mm  |  "
+           f"{cols} x {rows} samples at {fmt_number(pixel_mm, 0.01)} mm")
+    fig, bxy, (lx, ly), (fx, fy), fs = framed(to_image(canvas), title or "height field", sub,
+                                              legend_w=250, legend_min_h=360)
+    _, yb = colorbar(fig, lx, ly, 26, min(300, max(180, H // 2)), "height", zmin, zmax,
+                     "height (mm)", fs=fs)
+    y = swatch(fig, lx, yb + fs, (70, 52, 40), f"isolines every {fmt_number(step)} mm", fs)
+    total = max(int(removed_count or 0), len(peaks))
+    if total:
+        shown = "" if total == len(peaks) else f" ({len(peaks)} shown)"
+        y = swatch(fig, lx, y, PEAK_COLOR, f"{total} peaks simplified{shown}", fs, shape="ring")
+        lines = [f"prominence <= {prom.max():.1f} mm"] if peaks else []
+        stat_lines(fig, lx, y, lines + ["(not reproduced)"], fs)
+    scale_bar(fig, bxy[0], fy + fs, plan_s, min(0.4 * W, 300), fs)
+    fig.info["px_per_mm"] = plan_s
+    fig.info["origin_px"] = (bxy[0] + 0.5 * f, bxy[1] + (rows - 0.5) * f)
+    return fig
