@@ -8,14 +8,13 @@ daemon: the CLI inserts a request, the daemon carries it out and writes the resu
 
 import contextlib
 import json
-import shutil
 import sqlite3
 import time
 import uuid
 from pathlib import Path
 
 from hostd.errors import HostdError
-from hostd.outputs import mount_point
+from hostd.outputs import disk_text
 
 QUEUED, PLANNING, READY, PRINTING = "queued", "planning", "ready", "printing"
 DONE, FAILED, CANCELLED, INTERRUPTED = "done", "failed", "cancelled", "interrupted"
@@ -165,11 +164,9 @@ class JobStore:
             code = getattr(exc, "sqlite_errorcode", None)   # Python 3.11+
             if not (code == 13 if code is not None else "disk is full" in str(exc)):
                 raise
-            where = self.path.parent
             raise HostdError(
-                "cannot record jobs: SQLite reports the database or its disk full (the disk "
-                "mounted at %s has %.1f MB free)" % (mount_point(where),
-                                                     shutil.disk_usage(where).free / 1e6),
+                "cannot record jobs: SQLite reports the database or its disk full (%s)"
+                % disk_text(self.path.parent),
                 code=DISK_FULL, file=self.path,
                 fix="free space on that disk (old logs: `journalctl --vacuum-size=100M`; "
                     "finished jobs' folders in the outbox); hostd goes on by itself once "

@@ -21,6 +21,12 @@ def mount_point(path):
     return mount
 
 
+def disk_text(path):
+    """How people find the disk holding ``path``: "the disk mounted at M, N MB free"."""
+    return "the disk mounted at %s, %.1f MB free" % (mount_point(path),
+                                                     shutil.disk_usage(path).free / 1e6)
+
+
 def atomic_write(path, data):
     """Write ``data`` (bytes or str) to ``path`` via a temporary file and rename."""
     path = Path(path)

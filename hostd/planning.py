@@ -11,13 +11,12 @@ runs out of memory or runs away fails its own job only. The child writes
 import errno
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from hostd.outputs import mount_point
+from hostd.outputs import disk_text
 
 _REPO = str(Path(__file__).resolve().parents[1])
 
@@ -136,12 +135,9 @@ def _disk_full(outdir):
     for path in Path(outdir).iterdir():
         if path.is_file():
             path.unlink()
-    free_mb = shutil.disk_usage(outdir).free / 1e6
-    mount = mount_point(outdir)
     return {"ok": False, "code": "plan.disk_full",
-            "text": "the disk mounted at %s, which holds the outbox, is full: the plan's outputs "
-                    "did not fit (%.0f MB free once they were removed; a 150-175 mm part needs "
-                    "15-30 MB)" % (mount, free_mb),
+            "text": "the outbox's disk is full: the plan's outputs did not fit (%s once they "
+                    "were removed; a 150-175 mm part needs 15-30 MB)" % disk_text(outdir),
             "fix": "free space on that disk (finished jobs' folders in the outbox can go) or "
                    "set outbox_dir to a larger disk, then `hostd requeue` the job"}
 

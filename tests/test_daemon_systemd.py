@@ -137,7 +137,7 @@ def test_a_full_disk_fails_the_plan_with_its_own_code_and_frees_the_partial_outp
     mount = tmp_path.resolve()
     while not os.path.ismount(mount):
         mount = mount.parent
-    assert "mounted at %s," % mount in result["text"] and "outbox_dir" in result["fix"]
+    assert "the disk mounted at %s, " % mount in result["text"] and "outbox_dir" in result["fix"]
     assert sorted(p.name for p in outdir.iterdir()) == ["result.json"]
 
 
