@@ -96,12 +96,12 @@ def test_page_shows_inputs_in_the_drop_folder_that_are_no_job_yet(tmp_path):
         d.watcher.wake.set()
         d.tick()
         status = client.get("/api/status").get_json()
-        assert {(f["file"], f["complete"]) for f in status["drop_folder"]} == {
-            ("elsewhere/left.npy", True), ("new.npy", False)}
+        assert {(f["file"], f["complete"], f["this_node"]) for f in status["drop_folder"]} == {
+            ("elsewhere/left.npy", True, False), ("new.npy", False, True)}
         assert all(f["bytes"] > 0 for f in status["drop_folder"])
         html = client.get("/").get_data(as_text=True)
         assert "new.npy" in html and "still being copied" in html
-        assert "elsewhere/left.npy" in html and "waiting for a printer" in html
+        assert "elsewhere/left.npy" in html and "names no printer or profile of this node" in html
 
         deadline = time.monotonic() + 10
         while not d.store.list():
@@ -111,5 +111,27 @@ def test_page_shows_inputs_in_the_drop_folder_that_are_no_job_yet(tmp_path):
         after = client.get("/api/status").get_json()
         assert [f["file"] for f in after["drop_folder"]] == ["elsewhere/left.npy"]
         assert after["signature"] != status["signature"]
+    finally:
+        d.shutdown()
+
+
+def test_page_shows_a_file_left_for_a_free_printer_while_peers_share_the_folder(
+        tmp_path, monkeypatch):
+    d = in_process_daemon(tmp_path, time_scale=0, claim_ahead=1)
+    monkeypatch.setattr(d.farm, "live_peers", lambda: ["n2"])
+    client = create_app(d.config, store=d.store, daemon=d).test_client()
+    try:
+        for name in ("a.npy", "b.npy"):
+            write_dome(d.config.drop_dir / name)
+        deadline = time.monotonic() + 10
+        while not d.store.list():
+            assert time.monotonic() < deadline
+            d.tick()
+            time.sleep(0.05)
+        taken = d.store.list()[0]["name"]
+        left = client.get("/api/status").get_json()["drop_folder"]
+        assert [(f["file"], f["complete"], f["this_node"]) for f in left] == [
+            ({"a.npy": "b.npy", "b.npy": "a.npy"}[taken], True, True)]
+        assert "waiting for a printer" in client.get("/").get_data(as_text=True)
     finally:
         d.shutdown()

@@ -272,7 +272,8 @@ class NodeView:
         if self.daemon is None:
             return []
         drop = Path(self.config.drop_dir)
-        return [{"file": rel, "bytes": size, "complete": complete}
+        return [{"file": rel, "bytes": size, "complete": complete,
+                 "this_node": self.daemon._target_ok(rel.split("/")[0] if "/" in rel else None)}
                 for rel, size, complete in self.daemon.watcher.inputs
                 if os.path.exists(drop / rel)]
 
