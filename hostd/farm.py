@@ -6,6 +6,11 @@
 - Lease: each node rewrites ``drop/.claimed/<node>/.lease`` every heartbeat; a node
   whose lease is older than ``lease_s`` is dead and any node moves its claimed files
   back into the drop folder.
+- Ages on the share are read on the share's clock: a file's modification time (set
+  by the file server when written) against that of this node's own lease, renewed
+  every heartbeat. The nodes' own clocks never enter: a Raspberry Pi without a
+  battery-backed clock, or a NAS whose clock is off, would otherwise make a live
+  node look dead (its files released and printed twice) or a dead one alive.
 - Status: ``drop/.hostd/nodes/<node>.json`` (printers, state, current job, queue
   length, last seen), written atomically.
 - Inputs are never deleted: ``done/YYYY-MM-DD/`` after success, ``failed/`` beside
@@ -110,9 +115,20 @@ class Farm:
         self.claim_dir.mkdir(exist_ok=True)
         atomic_write(self.claim_dir / ".lease", "%f\n" % time.time())
 
+    def share_now(self):
+        """The share's time, within a heartbeat: when this node's lease was last renewed
+        (this machine's clock only before the first renewal)."""
+        try:
+            return (self.claim_dir / ".lease").stat().st_mtime
+        except OSError:
+            return time.time()
+
     def release_dead(self, now=None):
-        """Move claims of nodes whose lease expired back into the drop folder; returns count."""
-        now = time.time() if now is None else now
+        """Move claims of nodes whose lease expired back into the drop folder; returns count.
+
+        ``now``: the share's time (default :meth:`share_now`).
+        """
+        now = self.share_now() if now is None else now
         moved = 0
         try:
             nodes = [d for d in os.scandir(self.claims_root) if d.is_dir(follow_symlinks=False)]
@@ -165,21 +181,24 @@ class Farm:
         atomic_write(self.nodes_dir / (self.node_id + ".json"), json_text(data))
 
     def live_peers(self, now=None):
-        """Other nodes whose status file is fresh (within the lease) and not stopped."""
-        now = time.time() if now is None else now
-        return sorted(node for node, data in self.nodes().items()
-                      if node != self.node_id and isinstance(data, dict)
-                      and data.get("state") != "stopped"
-                      and isinstance(data.get("last_seen"), (int, float))
-                      and now - data["last_seen"] < self.lease_s)
+        """Other nodes whose status file is fresh (written within the lease) and not stopped."""
+        return sorted(node for node, (data, age) in self.nodes(now).items()
+                      if node != self.node_id and data.get("state") != "stopped"
+                      and age < self.lease_s)
 
-    def nodes(self):
+    def nodes(self, now=None):
+        """Every node's status: {node: (data dict, seconds since written, share's clock)}."""
+        now = self.share_now() if now is None else now
         out = {}
         for path in sorted(self.nodes_dir.glob("*.json")):
             try:
-                out[path.stem] = json.loads(path.read_text())
+                with open(path, "rb") as f:   # an open, not a stat: NFS revalidates on open
+                    data = json.loads(f.read())
+                    written = os.fstat(f.fileno()).st_mtime
             except (OSError, ValueError):
                 continue
+            if isinstance(data, dict):
+                out[path.stem] = (data, now - written)
         return out
 
 

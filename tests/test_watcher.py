@@ -3,6 +3,8 @@
 import os
 import time
 
+import pytest
+
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, plan_key
 from hostd.watcher import Candidate, Watcher, ignored, name_problem, safe_stem
 
@@ -111,13 +113,37 @@ def test_claim_exactly_once_and_release_of_dead_node(tmp_path):
     assert (drop / "mk3" / "a_b.png").exists() and (drop / "mk3" / "a_b.yaml").exists()
 
 
+@pytest.mark.parametrize("skew_s", [3600.0, -3600.0])
+def test_ages_on_the_share_are_read_on_the_shares_clock(tmp_path, monkeypatch, skew_s):
+    """A node whose own clock is an hour off (a Pi without a clock battery, before NTP)
+    neither releases a live node's claims nor takes a dead node for alive."""
+    drop = tmp_path / "drop"
+    a, b = Farm(drop, "a", lease_s=5), Farm(drop, "b", lease_s=5)
+    a.setup()
+    (drop / "x.png").write_bytes(b"x")
+    a.claim(_cand(drop, "x.png"))
+    a.publish_status({"state": "running", "printers": []})
+    real = time.time
+    monkeypatch.setattr(time, "time", lambda: real() + skew_s)
+    b.setup()                  # renews b's lease: the share's "now"
+    assert b.release_dead() == 0 and b.live_peers() == ["a"]
+    assert (drop / ".claimed" / "a" / "@" / "x.png").exists()
+
+    # a stops: its lease and status are not written again for 10 s of the share's time
+    for f in (drop / ".claimed" / "a" / ".lease", drop / ".hostd" / "nodes" / "a.json"):
+        os.utime(f, (real() - 10,) * 2)
+    b.renew_lease()
+    assert b.live_peers() == [] and b.release_dead() == 1
+    assert (drop / "x.png").exists()
+
+
 def test_status_file_archives_and_cache(tmp_path):
     drop = tmp_path / "drop"
     farm = Farm(drop, "n1")
     farm.setup()
     farm.publish_status({"printers": [], "queue_length": 3})
-    status = farm.nodes()["n1"]
-    assert status["queue_length"] == 3 and status["last_seen"] > 0
+    status, age_s = farm.nodes()["n1"]
+    assert status["queue_length"] == 3 and status["last_seen"] > 0 and abs(age_s) < 5
     src = tmp_path / "x.png"
     src.write_bytes(b"1")
     dest, side = archive_failed(src, None, tmp_path / "failed", "x.png", "it is broken")

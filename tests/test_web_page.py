@@ -1,6 +1,7 @@
 """The page without JavaScript, the farm view from the nodes' status files, and waitress serving."""
 
 import json
+import os
 import time
 
 from daemon_helpers import in_process_daemon, write_dome
@@ -47,6 +48,7 @@ def test_farm_view_marks_stale_nodes(tmp_path):
     atomic_write(nodes / "old<b>.json", json.dumps({
         "node_id": "old", "state": "running", "last_seen": now - 3600, "queue_length": 0,
         "printers": [{"name": "mk3", "state": "idle", "paused": False, "job": None}]}))
+    os.utime(nodes / "old<b>.json", (now - 3600,) * 2)    # not written for an hour
     atomic_write(nodes / "broken.json", "{not json")
     html = n.client.get("/farm").get_data(as_text=True)
     assert '<a href="http://n1.local:8080/">n1</a>' in html

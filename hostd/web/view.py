@@ -281,15 +281,10 @@ class NodeView:
         """Every node's status file on the share, with ``stale`` and ``age_s``."""
         from hostd.farm import Farm
         stale_s = stale_s or max(15.0, 3.0 * self.config.heartbeat_s)
-        now = time.time()
         out = []
-        for node_id, data in Farm(self.config.drop_dir, self.config.node_id).nodes().items():
-            if not isinstance(data, dict):
-                continue
-            seen = data.get("last_seen")
-            age = now - seen if isinstance(seen, (int, float)) else None
-            data = dict(data, node_id=node_id, age_s=round(age, 1) if age is not None else None,
-                        stale=age is None or age > stale_s or data.get("state") == "stopped",
+        for node_id, (data, age) in Farm(self.config.drop_dir, self.config.node_id).nodes().items():
+            data = dict(data, node_id=node_id, age_s=round(max(age, 0.0), 1),
+                        stale=age > stale_s or data.get("state") == "stopped",
                         printers=[dict(p, state=page_state(p.get("state"), p.get("paused")))
                                   for p in data.get("printers") or [] if isinstance(p, dict)])
             out.append(data)
