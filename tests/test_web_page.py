@@ -57,6 +57,7 @@ def test_farm_view_marks_stale_nodes(tmp_path):
     assert 'class="node stale" data-node="old&lt;b&gt;"' in html
     assert "<b>.json" not in html and "old<b>" not in html
     assert html.count("stale") >= 2 and "broken" not in html
+    assert "last seen 1:00:00 ago" in html and "last seen 0:00 ago" in html
     n.store.close()
 
 
