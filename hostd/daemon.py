@@ -4,7 +4,9 @@ One thread owns the loop (and the job store); each printer link has its own driv
 thread, each plan its own process. Every tick: answer control requests from the
 terminal commands, take complete files from the drop folder, start and reap plans,
 follow prints and hand ready jobs to idle printers, and every ``heartbeat_s`` renew
-the claim lease, publish the node status and ping systemd's watchdog.
+the claim lease and publish the node status. systemd's watchdog is fed from a thread of
+its own (:mod:`hostd.watchdog`), so a loop stuck on a share that does not answer ends no
+print.
 
 On SIGTERM/SIGINT the loop stops feeding printers (cancel script: heaters off, lift,
 motors off), leaves printing jobs ``interrupted``, stops the plans (their jobs are
@@ -28,6 +30,7 @@ from hostd.notify import Notifier
 from hostd.planning import PlanProcess
 from hostd.recovery import RecoveryMixin
 from hostd.slot import Slot
+from hostd.watchdog import LoopWatch
 from hostd.watcher import Watcher, name_problem
 
 log = logging.getLogger("hostd.daemon")
@@ -50,6 +53,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self.lock = DaemonLock(config.lock_path)
         self.store = None
         self.web = None
+        self.watch = None
         self._next_beat = 0.0
         self._next_reconnect = 0.0
         self._profile_hashes = {}
@@ -76,6 +80,9 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             self.web = web_server.start(c, self.store, self)
         log.info("node %s watching %s with %d printer(s)", c.node_id, c.drop_dir, len(self.slots))
         self.notify.ready("watching %s" % c.drop_dir)
+        self.watch = LoopWatch(self.notify, self._printing,
+                               min(c.heartbeat_s, self.notify.watchdog_s or c.heartbeat_s))
+        self.watch.start()
 
     def request_stop(self, *_):
         self.stop_event.set()
@@ -98,6 +105,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
 
     def tick(self):
         now = time.monotonic()
+        self.watch.tick()
         # A full job database or a lost share stops everything that starts work (a claimed
         # file must be recorded, a started plan or print too), never the prints running.
         writable = self._may_write(now)
@@ -115,7 +123,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             if writable and self._full_at < now:   # no write failed in this tick
                 self._full_back()
         if now >= self._next_beat:
-            self._next_beat = now + min(self.config.heartbeat_s, self.notify.watchdog_s or 1e9)
+            self._next_beat = now + self.config.heartbeat_s
             self._heartbeat()
 
     def shutdown(self):
@@ -150,6 +158,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             with self._full_ok():
                 self.store.set_printer(slot.name, state="stopped", job_id=None)
         self._heartbeat(state="stopped")
+        if self.watch is not None:
+            self.watch.stop()
         self.store.close()
         self.lock.release()
 
@@ -404,6 +414,11 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                 "planning": sorted(self.plans), "web_url": self.web.url if self.web else None,
                 "problem": self.problem}
 
+    def _printing(self):
+        """Whether a print runs (asked from the watchdog's thread)."""
+        jobs = [s.link_job for s in self.slots]   # the loop may end one meanwhile
+        return any(j is not None and j.snapshot()["result"] is None for j in jobs)
+
     def _heartbeat(self, state="running"):
         with self._share_ok():
             self.farm.renew_lease()
@@ -422,9 +437,6 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             len(busy), status["queue_length"], len(status["planning"]),
             "; job database full" if self._full is not None else "",
             "; share unreachable" if self._share is not None else ""))
-        # Alive and printing: a restart would neither make room nor bring the share back,
-        # only end the prints.
-        self.notify.watchdog()
 
 
 def run(config):

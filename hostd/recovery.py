@@ -162,4 +162,5 @@ class RecoveryMixin:
         """What keeps this node from taking work, for people (None: nothing)."""
         texts = [e.text() if isinstance(e, HostdError) else self._share_text(e)
                  for e in (self._full, self._share) if e is not None]
-        return "; ".join(texts) or None
+        stuck = self.watch.problem if self.watch is not None else None
+        return "; ".join(texts + ([stuck] if stuck else [])) or None

@@ -10,6 +10,7 @@ unmounted one does (its drop folder is no longer there).
 
 import logging
 import shutil
+import threading
 import time
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from daemon_helpers import fill_store as fill
 from daemon_helpers import in_process_daemon, make_room, write_dome
 from hostd import daemon as daemon_mod
 from hostd import jobs as J
-from hostd import recovery
+from hostd import recovery, watchdog
 from hostd.errors import HostdError
 from hostd.web.app import create_app
 
@@ -216,3 +217,77 @@ def test_a_share_folder_that_stays_unwritable_is_told_once_not_at_every_heartbea
         assert done in Path(d.store.get(job_id)["input_path"]).parents
     finally:
         d.shutdown()
+
+
+@pytest.mark.slow
+def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
+        tmp_path, monkeypatch, caplog):
+    """An NFS server rebooting blocks every call on its share, and the run loop makes
+    such calls. systemd's watchdog is fed while a print runs (a restart would end it
+    and bring no share back), not when nothing prints; the stuck loop is told once,
+    with where, and is the node's problem until it moves again."""
+    monkeypatch.setattr(watchdog, "STALL_S", 1.0)
+    caplog.set_level(logging.INFO, logger="hostd.daemon")
+    gate, armed, stop, ready = (threading.Event() for _ in range(4))
+    held = {}
+
+    def loop():                       # the loop's thread owns the daemon and its store
+        d = held["d"] = in_process_daemon(tmp_path, time_scale=0.01)
+        publish = d.farm.publish_status
+
+        def hanging_publish(status):  # the share's status folder, not answering
+            if armed.is_set():
+                gate.wait(60)
+            return publish(status)
+
+        d.farm.publish_status = hanging_publish
+        ready.set()
+        try:
+            while not stop.is_set():
+                d.tick()
+                time.sleep(0.02)
+        finally:
+            d.shutdown()
+
+    def wait_for(predicate, what, timeout_s=60.0):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            assert time.monotonic() < deadline, "timed out waiting for " + what
+            time.sleep(0.05)
+
+    runner = threading.Thread(target=loop)
+    runner.start()
+    try:
+        assert ready.wait(30)
+        d = held["d"]
+        store = J.JobStore(d.config.db_path)
+        drop_dome(d, tmp_path, "dome.npy")
+        wait_for(lambda: d.slots[0].job_id is not None, "the print to start")
+        job_id, link = d.slots[0].job_id, d.slots[0].link_job
+        armed.set()
+        wait_for(lambda: d.problem is not None, "the stuck loop to be noticed", 10)
+        assert "stuck" in d.problem and "_heartbeat" in d.problem, d.problem
+        pings = d.notify.watchdog_pings
+        time.sleep(1.5)
+        assert d.notify.watchdog_pings >= pings + 3, "fed while the print runs"
+        assert link.snapshot()["result"] is None and link.snapshot()["confirmed"] > 0
+        stuck = [r for r in caplog.records if "loop has been stuck" in r.getMessage()]
+        assert len(stuck) == 1 and stuck[0].levelno == logging.ERROR
+
+        armed.clear()
+        gate.set()
+        wait_for(lambda: d.problem is None, "the loop to move again", 10)
+        assert "moves again" in caplog.text
+        wait_for(lambda: store.get(job_id)["state"] == J.DONE, "the print to be filed", 120)
+
+        gate.clear()
+        armed.set()                   # stuck again, with nothing printing
+        wait_for(lambda: d.problem is not None, "the second stall", 10)
+        pings = d.notify.watchdog_pings
+        time.sleep(1.0)
+        assert d.notify.watchdog_pings == pings, "not fed: a restart costs no print"
+    finally:
+        armed.clear()
+        gate.set()
+        stop.set()
+        runner.join(30)
