@@ -2,6 +2,7 @@
 
 import json
 import os
+import threading
 import time
 
 from daemon_helpers import in_process_daemon, write_dome
@@ -138,3 +139,35 @@ def test_page_shows_a_file_left_for_a_free_printer_while_peers_share_the_folder(
         assert "waiting for a printer" in client.get("/").get_data(as_text=True)
     finally:
         d.shutdown()
+
+
+def test_a_share_that_does_not_answer_does_not_hang_the_page(tmp_path, monkeypatch):
+    """The outboxes are on a share that stopped answering (an NFS server rebooting):
+    the page answers without their files, at once after the first read gave up, and
+    shows them again once the share is back."""
+    from hostd.web import view as view_mod
+    n = Node(tmp_path)
+    gate = threading.Event()
+    listing = view_mod.outbox_files
+
+    def hanging(outbox):
+        gate.wait(30)
+        return listing(outbox)
+
+    monkeypatch.setattr(view_mod, "outbox_files", hanging)
+    try:
+        t = time.monotonic()
+        first = n.client.get("/api/status")
+        assert first.status_code == 200 and time.monotonic() - t < 5
+        job = next(j for j in first.get_json()["queue"] + [
+            p["job"] for p in first.get_json()["printers"] if p["job"]] if j["id"] == n.printing)
+        assert job["files"] == []
+        t = time.monotonic()
+        assert n.client.get("/").status_code == 200 and time.monotonic() - t < 1.0
+    finally:
+        gate.set()
+    time.sleep(0.2)
+    status = n.client.get("/api/status").get_json()
+    printing = [p["job"] for p in status["printers"] if p["job"]][0]
+    assert "dome.gcode" in printing["files"] and printing["layers"] == 2
+    n.store.close()

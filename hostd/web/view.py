@@ -6,6 +6,7 @@ live values (state, temperatures, line counters) are copies the driver thread ke
 """
 
 import bisect
+import concurrent.futures
 import json
 import os
 import stat
@@ -37,6 +38,33 @@ def _downsample(samples, n=HISTORY_POINTS):
         return samples
     step = len(samples) / float(n)
     return [samples[int(i * step)] for i in range(n - 1)] + [samples[-1]]
+
+
+class _ShareReads:
+    """Reads of the share for the web threads, given up after ``timeout_s``.
+
+    A share that stops answering (an NFS server rebooting) blocks every call on it; a
+    page that waited would hold a server thread per poll, and within seconds none
+    would be left to answer anything, an emergency stop included. So a read runs on a
+    helper thread; once one has not answered in time the page goes without the share's
+    files (``default``) until that read returns.
+    """
+
+    def __init__(self, timeout_s=2.0):
+        self.timeout_s = float(timeout_s)
+        self._pool = concurrent.futures.ThreadPoolExecutor(2, "hostd-web-share")
+        self._hung = None
+
+    def call(self, default, fn, *args):
+        hung = self._hung
+        if hung is not None and not hung.done():
+            return default
+        future = self._pool.submit(fn, *args)
+        try:
+            return future.result(self.timeout_s)
+        except concurrent.futures.TimeoutError:
+            self._hung = future
+            return default
 
 
 class _FileCache:
@@ -111,6 +139,7 @@ class NodeView:
         self.db_path = Path(db_path or config.db_path)
         self._local = threading.local()
         self._files = _FileCache()
+        self._share = _ShareReads()
 
     # -- store -----------------------------------------------------------------------------
 
@@ -155,9 +184,10 @@ class NodeView:
     # -- jobs ------------------------------------------------------------------------------
 
     def report(self, job):
-        for name in outbox_files(job.get("outbox")):
+        for name in self._share.call([], outbox_files, job.get("outbox")):
             if name.endswith(".report.json"):
-                return self._files.get(Path(job["outbox"]) / name, _read_json)
+                return self._share.call(None, self._files.get, Path(job["outbox"]) / name,
+                                        _read_json)
         return None
 
     def job_info(self, job, live=None, with_report=False):
@@ -166,7 +196,7 @@ class NodeView:
                 "copies_done", "progress", "error", "error_code", "created_at", "updated_at",
                 "started_at", "finished_at")
         info = {k: job.get(k) for k in keys}
-        files = outbox_files(job.get("outbox"))
+        files = self._share.call([], outbox_files, job.get("outbox"))
         info["files"] = files
         stem = next((f[:-len(".toolpath.png")] for f in files if f.endswith(".toolpath.png")),
                     None)
@@ -188,7 +218,8 @@ class NodeView:
                 info["eta_s"] = round(elapsed * (1.0 - p) / p, 1)
             gcode = next((f for f in files if f.endswith(".gcode")), None)
             if gcode:
-                layers = self._files.get(Path(job["outbox"]) / gcode, _layer_starts)
+                layers = self._share.call(None, self._files.get, Path(job["outbox"]) / gcode,
+                                          _layer_starts)
                 if layers:
                     starts, count = layers
                     info["layer"] = max(1, bisect.bisect_right(starts, last_line))
@@ -272,17 +303,19 @@ class NodeView:
         if self.daemon is None:
             return []
         drop = Path(self.config.drop_dir)
+        inputs = self.daemon.watcher.inputs
+        there = self._share.call([], lambda: [os.path.exists(drop / i[0]) for i in inputs])
         return [{"file": rel, "bytes": size, "complete": complete,
                  "this_node": self.daemon._target_ok(rel.split("/")[0] if "/" in rel else None)}
-                for rel, size, complete in self.daemon.watcher.inputs
-                if os.path.exists(drop / rel)]
+                for (rel, size, complete), present in zip(inputs, there) if present]
 
     def nodes(self, stale_s=None):
         """Every node's status file on the share, with ``stale`` and ``age_s``."""
         from hostd.farm import Farm
         stale_s = stale_s or max(15.0, 3.0 * self.config.heartbeat_s)
         out = []
-        for node_id, (data, age) in Farm(self.config.drop_dir, self.config.node_id).nodes().items():
+        farm = Farm(self.config.drop_dir, self.config.node_id)
+        for node_id, (data, age) in self._share.call({}, farm.nodes).items():
             data = dict(data, node_id=node_id, age_s=round(max(age, 0.0), 1),
                         stale=age > stale_s or data.get("state") == "stopped",
                         printers=[dict(p, state=page_state(p.get("state"), p.get("paused")))
