@@ -105,7 +105,6 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
 
     def tick(self):
         now = time.monotonic()
-        self.watch.tick()
         # A full job database or a lost share stops everything that starts work (a claimed
         # file must be recorded, a started plan or print too), never the prints running.
         writable = self._may_write(now)
@@ -125,6 +124,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         if now >= self._next_beat:
             self._next_beat = now + self.config.heartbeat_s
             self._heartbeat()
+        self.watch.tick()     # a whole round: neither stuck nor failing every time
 
     def shutdown(self):
         self.notify.stopping("stopping")

@@ -9,7 +9,8 @@ prints read local copies and would have gone on, and a restart brings no share b
 So the pings come from here: while the loop has ticked within ``STALL_S`` or a print
 is running (its link lives in its own process), systemd hears that hostd is alive. A
 loop stuck with nothing printing is left to the watchdog: then a restart costs nothing.
-A stuck loop is told once, with where it is stuck, and shown as the node's problem.
+A stuck loop (or one failing at every round) is told once, with where it is, and shown as
+the node's problem.
 """
 
 import logging
@@ -40,7 +41,7 @@ class LoopWatch:
 
     notify : :class:`hostd.notify.Notifier`; printing : callable, True while a print runs;
     interval_s : seconds between pings (systemd wants one every half of ``WatchdogSec``).
-    The loop calls :meth:`tick` every time round.
+    The loop calls :meth:`tick` at the end of every round it completes.
     """
 
     def __init__(self, notify, printing, interval_s, clock=time.monotonic):
@@ -77,8 +78,9 @@ class LoopWatch:
             self.notify.watchdog()
             return
         if self.problem is None:
-            self.problem = ("the run loop has been stuck since %s (at %s): a network share "
-                            "that does not answer does this" % (
+            self.problem = ("the run loop has not completed a round since %s (now at %s): a "
+                            "network share that does not answer does this, or an error "
+                            "repeated in the log" % (
                                 time.strftime("%H:%M:%S", time.localtime(time.time() - stuck_s)),
                                 where(self._loop_thread)))
             log.error("%s. Prints already running go on (they read local copies) and systemd's "

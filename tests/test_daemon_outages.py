@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from daemon_helpers import fill_store as fill
-from daemon_helpers import in_process_daemon, make_room, write_dome
+from daemon_helpers import Pings, in_process_daemon, make_room, write_dome
 from hostd import daemon as daemon_mod
 from hostd import jobs as J
 from hostd import recovery, watchdog
@@ -54,6 +54,13 @@ def drop_dome(d, tmp_path, name):
         shutil.copy(f, d.config.drop_dir / f.name)
 
 
+def start_print(d, tmp_path, name="dome.npy"):
+    """Drop a small dome and tick until it prints; returns its job id."""
+    drop_dome(d, tmp_path, name)
+    run_until(d, lambda: d.slots[0].job_id is not None, what="the print of %s to start" % name)
+    return d.slots[0].job_id
+
+
 @pytest.mark.slow
 def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         tmp_path, monkeypatch, caplog):
@@ -63,9 +70,7 @@ def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
     config, pings = d.config, d.notify
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     try:
-        drop_dome(d, tmp_path, "first.npy")
-        run_until(d, lambda: d.slots[0].job_id is not None, what="the first print to start")
-        first = d.slots[0].job_id
+        first = start_print(d, tmp_path, "first.npy")
 
         fill(d.store)
         drop_dome(d, tmp_path, "second.npy")
@@ -131,9 +136,7 @@ def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_di
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     drop = d.config.drop_dir
     try:
-        drop_dome(d, tmp_path, "dome.npy")
-        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
-        job_id, slot = d.slots[0].job_id, d.slots[0]
+        job_id, slot = start_print(d, tmp_path), d.slots[0]
 
         drop.rename(drop.with_name("drop.away"))     # the share's drop folder is gone
         pings = d.notify.watchdog_pings
@@ -169,9 +172,7 @@ def test_prints_are_fed_from_a_local_copy_of_the_gcode(tmp_path):
     d = in_process_daemon(tmp_path, time_scale=0.003)
     try:
         assert not stale.exists()
-        drop_dome(d, tmp_path, "dome.npy")
-        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
-        job_id, slot = d.slots[0].job_id, d.slots[0]
+        job_id, slot = start_print(d, tmp_path), d.slots[0]
         source = Path(slot.link_job.snapshot()["name"])
         assert source.parent == d.config.spool_dir
         outbox = next(Path(d.store.get(job_id)["outbox"]).glob("*.gcode"))
@@ -193,9 +194,7 @@ def test_a_share_folder_that_stays_unwritable_is_told_once_not_at_every_heartbea
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     done = d.config.done_dir
     try:
-        drop_dome(d, tmp_path, "dome.npy")
-        run_until(d, lambda: d.slots[0].job_id is not None, what="the print to start")
-        job_id = d.slots[0].job_id
+        job_id = start_print(d, tmp_path)
         shutil.rmtree(done)
         done.write_text("not a folder\n")
         run_until(d, lambda: d.problem is not None, timeout_s=120,
@@ -266,12 +265,12 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
         job_id, link = d.slots[0].job_id, d.slots[0].link_job
         armed.set()
         wait_for(lambda: d.problem is not None, "the stuck loop to be noticed", 10)
-        assert "stuck" in d.problem and "_heartbeat" in d.problem, d.problem
+        assert "not completed a round" in d.problem and "_heartbeat" in d.problem, d.problem
         pings = d.notify.watchdog_pings
         time.sleep(1.5)
         assert d.notify.watchdog_pings >= pings + 3, "fed while the print runs"
         assert link.snapshot()["result"] is None and link.snapshot()["confirmed"] > 0
-        stuck = [r for r in caplog.records if "loop has been stuck" in r.getMessage()]
+        stuck = [r for r in caplog.records if "not completed a round" in r.getMessage()]
         assert len(stuck) == 1 and stuck[0].levelno == logging.ERROR
 
         armed.clear()
@@ -291,3 +290,50 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
         gate.set()
         stop.set()
         runner.join(30)
+
+
+class Clock:
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_the_watchdog_is_fed_while_the_loop_moves_or_a_print_runs(caplog):
+    caplog.set_level(logging.INFO, logger="hostd.daemon")
+    clock, printing = Clock(), [False]
+    pings = Pings()
+    watch = watchdog.LoopWatch(pings, lambda: printing[0], 1.0, clock=clock)
+    watch.check()
+    assert pings.watchdog_pings == 1 and watch.problem is None
+    clock.now += watchdog.STALL_S + 1            # no round completed since
+    watch.check()
+    assert pings.watchdog_pings == 1, "stuck, nothing printing: left to systemd"
+    assert "not completed a round" in watch.problem
+    printing[0] = True
+    watch.check()
+    watch.check()
+    assert pings.watchdog_pings == 3, "stuck while printing: a restart would end the print"
+    assert caplog.text.count("not completed a round") == 1
+    watch.tick()
+    watch.check()
+    assert pings.watchdog_pings == 4 and watch.problem is None and "moves again" in caplog.text
+
+
+def test_a_round_that_fails_does_not_count_as_one(tmp_path, monkeypatch):
+    """A round ending in an error leaves the watchdog's clock where it was, so a loop
+    failing at every round is seen like a stuck one (and restarted if nothing prints)."""
+    d = in_process_daemon(tmp_path, time_scale=0)
+    try:
+        d.tick()
+        done = d.watch.last_tick
+        monkeypatch.setattr(d, "_follow_prints", lambda: 1 / 0)
+        with pytest.raises(ZeroDivisionError):
+            d.tick()
+        assert d.watch.last_tick == done
+        monkeypatch.undo()
+        d.tick()
+        assert d.watch.last_tick > done
+    finally:
+        d.shutdown()
