@@ -26,6 +26,14 @@ class IntakeMixin:
             elif self._intake(cand):
                 room -= 1
 
+    def dropped(self):
+        """Inputs in the drop folder at the last scan (asked from the web's threads):
+        [{"file": rel path, "bytes", "complete", "this_node": whether its folder targets
+        this node}]."""
+        return [{"file": rel, "bytes": size, "complete": complete,
+                 "this_node": self._target_ok(rel.split("/")[0] if "/" in rel else None)}
+                for rel, size, complete in self.watcher.inputs]
+
     def _target_ok(self, target):
         return target is None or any(target in (s.name, s.config.profile) for s in self.slots)
 

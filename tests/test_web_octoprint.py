@@ -32,7 +32,7 @@ def fake_daemon(node, state="printing", with_job=True):
                            job_id=node.printing if with_job else None,
                            link_job=FakeLinkJob(1, 4) if with_job else None, error=None,
                            config=node.config.printers[0])
-    return SimpleNamespace(slots=[slot], problem=None)
+    return SimpleNamespace(slots=[slot], problem=None, dropped=lambda: [])
 
 
 @pytest.fixture

@@ -303,11 +303,9 @@ class NodeView:
         if self.daemon is None:
             return []
         drop = Path(self.config.drop_dir)
-        inputs = self.daemon.watcher.inputs
-        there = self._share.call([], lambda: [os.path.exists(drop / i[0]) for i in inputs])
-        return [{"file": rel, "bytes": size, "complete": complete,
-                 "this_node": self.daemon._target_ok(rel.split("/")[0] if "/" in rel else None)}
-                for (rel, size, complete), present in zip(inputs, there) if present]
+        inputs = self.daemon.dropped()
+        there = self._share.call([], lambda: [os.path.exists(drop / i["file"]) for i in inputs])
+        return [i for i, present in zip(inputs, there) if present]
 
     def nodes(self, stale_s=None):
         """Every node's status file on the share, with ``stale`` and ``age_s``."""
