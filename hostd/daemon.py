@@ -80,7 +80,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             self.web = web_server.start(c, self.store, self)
         log.info("node %s watching %s with %d printer(s)", c.node_id, c.drop_dir, len(self.slots))
         self.notify.ready("watching %s" % c.drop_dir)
-        self.watch = LoopWatch(self.notify, self._printing,
+        self.watch = LoopWatch(self.notify, self._holding_prints,
                                min(c.heartbeat_s, self.notify.watchdog_s or c.heartbeat_s))
         self.watch.start()
 
@@ -414,10 +414,10 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                 "planning": sorted(self.plans), "web_url": self.web.url if self.web else None,
                 "problem": self.problem}
 
-    def _printing(self):
-        """Whether a print runs (asked from the watchdog's thread)."""
-        jobs = [s.link_job for s in self.slots]   # the loop may end one meanwhile
-        return any(j is not None and j.snapshot()["result"] is None for j in jobs)
+    def _holding_prints(self):
+        """Whether a printer holds a job: printing, or ended and its outcome not yet
+        recorded (asked from the watchdog's thread)."""
+        return any(s.job_id is not None for s in self.slots)
 
     def _heartbeat(self, state="running"):
         with self._share_ok():

@@ -6,9 +6,10 @@ renewing the lease, filing an input. Pinging from the loop then stops, and after
 ``WatchdogSec`` systemd kills hostd and with it every print on the node, although the
 prints read local copies and would have gone on, and a restart brings no share back.
 
-So the pings come from here: while the loop has ticked within ``STALL_S`` or a print
-is running (its link lives in its own process), systemd hears that hostd is alive. A
-loop stuck with nothing printing is left to the watchdog: then a restart costs nothing.
+So the pings come from here: while the loop has ticked within ``STALL_S`` or a printer
+holds a job (printing: its link lives in its own process; or ended, its outcome not yet
+recorded, which a restart would turn into "interrupted"), systemd hears that hostd is
+alive. A loop stuck with nothing held is left to the watchdog: a restart costs nothing.
 A stuck loop (or one failing at every round) is told once, with where it is, and shown as
 the node's problem.
 """
@@ -39,14 +40,15 @@ def where(thread_id):
 class LoopWatch:
     """Feed systemd's watchdog while the run loop moves or a print runs.
 
-    notify : :class:`hostd.notify.Notifier`; printing : callable, True while a print runs;
+    notify : :class:`hostd.notify.Notifier`; holding : callable, True while a printer holds
+    a job;
     interval_s : seconds between pings (systemd wants one every half of ``WatchdogSec``).
     The loop calls :meth:`tick` at the end of every round it completes.
     """
 
-    def __init__(self, notify, printing, interval_s, clock=time.monotonic):
+    def __init__(self, notify, holding, interval_s, clock=time.monotonic):
         self.notify = notify
-        self.printing = printing
+        self.holding = holding
         self.interval_s = float(interval_s)
         self.clock = clock
         self.last_tick = clock()
@@ -87,7 +89,7 @@ class LoopWatch:
                       "watchdog is fed while they do; nothing is taken or started until the "
                       "loop moves. Fix: check the shares' mounts and the file server.",
                       self.problem)
-        if self.printing():
+        if self.holding():
             self.notify.watchdog()
 
     def _run(self):

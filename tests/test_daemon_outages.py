@@ -223,8 +223,9 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
         tmp_path, monkeypatch, caplog):
     """An NFS server rebooting blocks every call on its share, and the run loop makes
     such calls. systemd's watchdog is fed while a print runs (a restart would end it
-    and bring no share back), not when nothing prints; the stuck loop is told once,
-    with where, and is the node's problem until it moves again."""
+    and bring no share back) or its end is not yet recorded, not when nothing prints;
+    the stuck loop is told once, with where, and is the node's problem until it moves
+    again."""
     monkeypatch.setattr(watchdog, "STALL_S", 1.0)
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     gate, armed, stop, ready = (threading.Event() for _ in range(4))
@@ -272,6 +273,13 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
         assert link.snapshot()["result"] is None and link.snapshot()["confirmed"] > 0
         stuck = [r for r in caplog.records if "not completed a round" in r.getMessage()]
         assert len(stuck) == 1 and stuck[0].levelno == logging.ERROR
+        # The print ends while the loop is stuck: its outcome is not recorded yet, and a
+        # restart would leave it "interrupted", so systemd still hears that hostd lives.
+        wait_for(lambda: link.snapshot()["result"] is not None, "the print to end", 120)
+        pings = d.notify.watchdog_pings
+        time.sleep(1.0)
+        assert d.notify.watchdog_pings >= pings + 2, "fed until the print's end is recorded"
+        assert store.get(job_id)["state"] == J.PRINTING
 
         armed.clear()
         gate.set()
