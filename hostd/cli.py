@@ -6,6 +6,7 @@ Each subcommand lives in ``hostd.commands.<name>`` and registers itself through
 
 import argparse
 import importlib
+import sqlite3
 import sys
 
 from pipeline import __version__
@@ -41,3 +42,12 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("hostd: interrupted", file=sys.stderr)
         return 130
+    except sqlite3.DatabaseError as exc:
+        from hostd.jobs import DAMAGED, is_damage
+        if not is_damage(exc):
+            raise
+        print("hostd: error %s: the job database is damaged (SQLite: %s). Fix: restart the "
+              "daemon (`systemctl restart hostd`): it keeps the damaged file aside, starts a "
+              "new one and queues this node's claimed files again" % (DAMAGED, exc),
+              file=sys.stderr)
+        return 2

@@ -66,7 +66,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self.lock.acquire()
         for d in (c.drop_dir, c.state_dir, c.outbox_dir, c.done_dir, c.failed_dir):
             Path(d).mkdir(parents=True, exist_ok=True)
-        self.store = J.JobStore(c.db_path)
+        self.store, damaged, verdict = J.open_checked(c.db_path)
         # Nothing prints before the loop starts: copies left by a crash can go.
         shutil.rmtree(c.spool_dir, ignore_errors=True)
         self.farm.setup()
@@ -74,6 +74,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         for slot in self.slots:
             self.store.set_printer(slot.name, state="connecting", paused=0, job_id=None)
             slot.connect_async()
+        if damaged is not None:
+            self._hold_after_damage(damaged, verdict)
         self.watcher.start()
         if c.web.port is not None:
             from hostd.web import server as web_server

@@ -110,6 +110,48 @@ def _retry_locked(call, timeout_s=_BUSY_TIMEOUT_S):
             delay = min(2 * delay, 0.5)
 
 
+DAMAGED = "jobs.damaged"
+
+
+def is_damage(exc):
+    """Whether a SQLite error says the file is damaged (SQLITE_CORRUPT, SQLITE_NOTADB),
+    not merely busy or full."""
+    code = getattr(exc, "sqlite_errorcode", None)   # Python 3.11+; extended codes
+    if code is not None:
+        return code & 0xFF in (11, 26)
+    text = str(exc)
+    return "malformed" in text or "not a database" in text
+
+
+def open_checked(path):
+    """The daemon's own store, checked first (``PRAGMA quick_check``).
+
+    A file damaged (a power cut mid-write on an SD card that lies about flushing, a
+    failing card) is moved aside with its WAL, never deleted, and a new one started.
+    Returns (store, where the damaged file went or None, SQLite's verdict or None).
+    """
+    try:
+        store = JobStore(path)
+        verdict = store.db.execute("PRAGMA quick_check").fetchone()[0]
+    except sqlite3.DatabaseError as exc:
+        if not is_damage(exc):
+            raise
+        store, verdict = None, str(exc)
+    if verdict == "ok":
+        return store, None, None
+    if store is not None:
+        store.close()
+    stamp, n = time.strftime("%Y%m%d-%H%M%S"), 1
+    aside = Path("%s.damaged-%s" % (path, stamp))
+    while aside.exists():              # never over an earlier one
+        n += 1
+        aside = Path("%s.damaged-%s-%d" % (path, stamp, n))
+    for suffix in ("", "-wal", "-shm"):   # "-wal" stays beside its file, for .recover
+        if Path(str(path) + suffix).exists():
+            Path(str(path) + suffix).rename(str(aside) + suffix)
+    return JobStore(path), aside, verdict
+
+
 def new_job_id():
     """Sortable, short and safe in paths: ``YYYYmmdd-HHMMSS-xxxxxx``."""
     return time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + "-" + uuid.uuid4().hex[:6]

@@ -29,6 +29,7 @@ class RecoveryMixin:
     _full_at = 0.0      # when a write last failed for it
     _full_retry = 0.0
     _share = None       # the OSError while the share cannot be written
+    _damaged = None     # what replaced a damaged job database, until the printers resume
 
     def _recover(self):
         for job_id in self.store.recover():
@@ -52,6 +53,21 @@ class RecoveryMixin:
             elif job["state"] == J.READY and not self._gcode(job):
                 self.store.set_state(job["id"], J.QUEUED, "outputs missing: planning again")
         self._adopt_claimed()
+
+    def _hold_after_damage(self, damaged, verdict):
+        """A new job database replaced a damaged one: the claimed files are jobs again
+        (``_recover`` adopted them), but which one was printing is not known, so no
+        printer starts one before a person has looked at its bed."""
+        for slot in self.slots:
+            slot.paused = True
+            self.store.set_printer(slot.name, paused=1)
+        self._damaged = ("the job database was damaged (SQLite: %s) and a new one started; "
+                         "the old one is kept as %s. Printers are held: check each bed, then "
+                         "resume the printer" % (verdict, damaged))
+        log.error("%s (page, or `hostd resume NAME`). The files this node had claimed are "
+                  "queued again; the jobs' history is in the old file (`sqlite3 %s .recover` "
+                  "gets most of it back). A power cut on an SD card does this; if it comes "
+                  "back, replace the card.", self._damaged, damaged)
 
     def _adopt_claimed(self):
         """Record files claimed but never recorded (a crash, a full job database)."""
@@ -162,5 +178,7 @@ class RecoveryMixin:
         """What keeps this node from taking work, for people (None: nothing)."""
         texts = [e.text() if isinstance(e, HostdError) else self._share_text(e)
                  for e in (self._full, self._share) if e is not None]
+        if self._damaged and any(s.paused for s in self.slots):
+            texts.append(self._damaged)
         stuck = self.watch.problem if self.watch is not None else None
         return "; ".join(texts + ([stuck] if stuck else [])) or None

@@ -345,3 +345,33 @@ def test_a_round_that_fails_does_not_count_as_one(tmp_path, monkeypatch):
         assert d.watch.last_tick > done
     finally:
         d.shutdown()
+
+
+@pytest.mark.slow
+def test_after_a_damaged_job_database_the_claimed_files_wait_for_a_person(tmp_path):
+    """A power cut damaged the job database: the daemon starts anyway on a new one, the
+    files it had claimed are queued again, and no printer starts one before a person
+    has resumed it (which one was printing is not known any more)."""
+    from test_jobs import damage
+    d = in_process_daemon(tmp_path, time_scale=0, settle_s=0.0)
+    drop_dome(d, tmp_path, "dome.npy")
+    run_until(d, lambda: d.store.list(), what="the file to be claimed")
+    db = d.config.db_path
+    d.shutdown()
+    damage(db)
+
+    d = in_process_daemon(tmp_path, time_scale=0, settle_s=0.0)
+    try:
+        [job] = d.store.list()
+        assert job["rel_path"] == "dome.npy" and job["state"] == J.QUEUED
+        assert all(s.paused for s in d.slots) and "job database was damaged" in d.problem
+        assert list(db.parent.glob("jobs.sqlite.damaged-*"))
+        run_until(d, lambda: d.store.get(job["id"])["state"] == J.READY, what="the plan")
+        for _ in range(20):
+            d.tick()
+        assert d.slots[0].job_id is None, "held: nothing starts before a person resumes"
+        d._do_resume("p1")
+        assert d.problem is None
+        run_until(d, lambda: d.store.get(job["id"])["state"] == J.DONE, what="the print")
+    finally:
+        d.shutdown()

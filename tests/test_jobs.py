@@ -137,3 +137,49 @@ def test_a_terminal_command_on_a_full_job_database_says_so(tmp_path, monkeypatch
     rc = cli.cmd_action(argparse.Namespace(action="cancel", target="some-job", config=None))
     err = capsys.readouterr().err
     assert rc == 2 and "error jobs.disk_full" in err and "Fix: free space" in err
+
+
+def damage(path):
+    """What a power cut mid-write does to an SD card's pages: all after the first garbled."""
+    size = path.stat().st_size
+    with open(path, "r+b") as f:
+        f.seek(4096)
+        f.write(b"\xde\xad" * ((size - 4096) // 2))
+
+
+def test_a_damaged_job_database_is_kept_aside_and_a_new_one_started(tmp_path):
+    path = tmp_path / "jobs.sqlite"
+    store = J.JobStore(path)
+    store.add("a.png", "a.png", tmp_path / "a.png")
+    store.close()
+    store, aside, verdict = J.open_checked(path)
+    assert aside is None and verdict is None and len(store.list()) == 1
+    store.close()
+
+    damage(path)
+    kept = path.read_bytes()
+    store, aside, verdict = J.open_checked(path)
+    assert aside.name.startswith("jobs.sqlite.damaged-") and aside.read_bytes() == kept
+    assert "malformed" in verdict or "corrupt" in verdict, verdict
+    assert store.list() == [] and store.add("b.png", "b.png", tmp_path / "b.png")
+    store.close()
+
+    path.write_bytes(b"this is no database, but a file put in its place" * 100)
+    store, aside2, verdict = J.open_checked(path)
+    assert aside2 != aside and aside2.exists() and "not a database" in verdict
+    store.close()
+
+
+def test_a_terminal_command_on_a_damaged_job_database_says_so(tmp_path, capsys):
+    from daemon_helpers import write_config
+    from hostd.cli import main
+    from hostd.config import load_config
+    cfg = write_config(tmp_path)
+    path = load_config(cfg).db_path
+    store = J.JobStore(path)
+    store.add("a.png", "a.png", tmp_path / "a.png")
+    store.close()
+    damage(path)
+    assert main(["jobs", "--config", str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert "error jobs.damaged" in err and "restart the daemon" in err
