@@ -28,7 +28,8 @@ from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash,
 from hostd.lock import DaemonLock
 from hostd.notify import Notifier
 from hostd.planning import PlanProcess
-from hostd.recovery import RecoveryMixin
+from hostd.errors import HostdError
+from hostd.recovery import TWIN_FIX, RecoveryMixin
 from hostd.slot import Slot
 from hostd.watchdog import LoopWatch
 from hostd.watcher import Watcher, name_problem
@@ -66,6 +67,11 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self.lock.acquire()
         for d in (c.drop_dir, c.state_dir, c.outbox_dir, c.done_dir, c.failed_dir):
             Path(d).mkdir(parents=True, exist_ok=True)
+        twin = self.farm.held_by_another(2 * c.heartbeat_s + 1.0)
+        if twin:
+            self.lock.release()
+            raise HostdError(self._twin_text(twin), code="config.node_id", file=c.source,
+                             key="node_id", fix=TWIN_FIX)
         self.store, damaged, verdict = J.open_checked(c.db_path)
         # Nothing prints before the loop starts: copies left by a crash can go.
         shutil.rmtree(c.spool_dir, ignore_errors=True)
@@ -110,7 +116,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         # A full job database or a lost share stops everything that starts work (a claimed
         # file must be recorded, a started plan or print too), never the prints running.
         writable = self._may_write(now)
-        starting = writable and self._share is None
+        starting = writable and self._share is None and self._twin is None
         with self._full_ok(), self._share_ok():
             if writable:
                 self._control()
@@ -423,7 +429,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
 
     def _heartbeat(self, state="running"):
         with self._share_ok():
-            self.farm.renew_lease()
+            self._twin_seen(self.farm.renew_lease(state), time.monotonic())
             self._share_back()
             if state == "running":
                 self.farm.release_dead()

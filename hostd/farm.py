@@ -25,7 +25,9 @@ import json
 import logging
 import os
 import shutil
+import socket
 import time
+import uuid
 from pathlib import Path
 
 from hostd.outputs import atomic_write, json_text
@@ -73,6 +75,10 @@ class Farm:
     def __init__(self, drop_dir, node_id, lease_s=60.0):
         self.drop_dir = Path(drop_dir)
         self.node_id = node_id
+        # Who writes the lease, this time round: a second hostd with the same node_id
+        # (a cloned SD card keeps the hostname node_id comes from) writes another.
+        self.holder = "%s %s %d" % (uuid.uuid4().hex[:12], socket.gethostname(), os.getpid())
+        self._renewed = False
         self.lease_s = float(lease_s)
         self.claims_root = self.drop_dir / ".claimed"
         self.claim_dir = self.claims_root / node_id
@@ -109,11 +115,49 @@ class Farm:
                 side = None
         return dest, side
 
-    def renew_lease(self):
+    def lease_holder(self):
+        """The lease as last written: (its text after the time, mtime), or (None, None)."""
+        try:
+            with open(self.claim_dir / ".lease", "rb") as f:   # an open: NFS revalidates
+                words = f.read().decode("utf-8", "replace").split(None, 1)
+                return (words[1].strip() if len(words) > 1 else ""), os.fstat(f.fileno()).st_mtime
+        except OSError:
+            return None, None
+
+    def held_by_another(self, watch_s, poll_s=0.2):
+        """At start-up, before the first renewal: whether another hostd still renews this
+        node's lease. Unless its last writer stopped cleanly the lease is watched for
+        ``watch_s``; returns the writer's "id host pid" if it is written meanwhile."""
+        text, mtime = self.lease_holder()
+        if text is None or text.startswith("stopped"):
+            return None
+        log.info("node %s's lease was last written by %s and not released (a crash, or "
+                 "another hostd with this node_id): watching it for %.0f s",
+                 self.node_id, text or "an older hostd", watch_s)
+        deadline = time.monotonic() + watch_s
+        while time.monotonic() < deadline:
+            time.sleep(poll_s)
+            now = self.lease_holder()
+            if now != (text, mtime):
+                return now[0] or text or "an older hostd"
+        return None
+
+    def renew_lease(self, state="running"):
+        """Write the lease; returns who else wrote it since our last renewal (their
+        "id host pid"), or None. ``state`` "stopped" tells the next start of this node
+        that nobody holds it any more."""
         # Never the parents: a share that is not mounted must fail here, not be
         # recreated as empty folders on the local disk under its mount point.
         self.claim_dir.mkdir(exist_ok=True)
-        atomic_write(self.claim_dir / ".lease", "%f\n" % time.time())
+        other = None
+        if self._renewed:
+            text, _ = self.lease_holder()
+            if text and not text.startswith(self.holder) and not text.startswith("stopped"):
+                other = text
+        atomic_write(self.claim_dir / ".lease", "%f %s\n" % (
+            time.time(), self.holder if state != "stopped" else "stopped " + self.holder))
+        self._renewed = True
+        return other
 
     def share_now(self):
         """The share's time, within a heartbeat: when this node's lease was last renewed

@@ -20,6 +20,8 @@ from hostd.watcher import INPUT_SUFFIXES
 
 log = logging.getLogger("hostd.daemon")
 FULL_RETRY_S = 30.0     # while the job database cannot grow: how often to try again
+TWIN_FIX = ("give each node its own node_id in hostd.yaml (by default it is the hostname, "
+            "which a cloned SD card keeps), then restart both")
 
 
 class RecoveryMixin:
@@ -30,6 +32,8 @@ class RecoveryMixin:
     _full_retry = 0.0
     _share = None       # the OSError while the share cannot be written
     _damaged = None     # what replaced a damaged job database, until the printers resume
+    _twin = None        # another hostd writing this node's lease: what it says
+    _twin_at = 0.0
 
     def _recover(self):
         for job_id in self.store.recover():
@@ -160,6 +164,23 @@ class RecoveryMixin:
                 return False
         return True
 
+    def _twin_text(self, other):
+        return ("another hostd uses node_id %r on this share: it writes the same lease (its "
+                "id, host and pid: %s)" % (self.config.node_id, other))
+
+    def _twin_seen(self, other, now):
+        """After a lease renewal: a second hostd with our node_id would take and adopt our
+        files as its own, so while one shows, neither takes nor starts anything."""
+        if other:
+            if self._twin is None:
+                log.error("%s. Nothing is taken or started until it is gone; prints already "
+                          "running go on. Fix: %s.", self._twin_text(other), TWIN_FIX)
+            self._twin, self._twin_at = self._twin_text(other), now
+        elif self._twin is not None and now - self._twin_at > self.config.lease_s:
+            self._twin = None
+            log.info("no other hostd has written node %s's lease for %.0f s; carrying on",
+                     self.config.node_id, self.config.lease_s)
+
     def _full_back(self):
         if self._full is not None:
             self._resync()
@@ -180,5 +201,7 @@ class RecoveryMixin:
                  for e in (self._full, self._share) if e is not None]
         if self._damaged and any(s.paused for s in self.slots):
             texts.append(self._damaged)
+        if self._twin:
+            texts.append(self._twin)
         stuck = self.watch.problem if self.watch is not None else None
         return "; ".join(texts + ([stuck] if stuck else [])) or None

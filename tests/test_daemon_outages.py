@@ -375,3 +375,58 @@ def test_after_a_damaged_job_database_the_claimed_files_wait_for_a_person(tmp_pa
         run_until(d, lambda: d.store.get(job["id"])["state"] == J.DONE, what="the print")
     finally:
         d.shutdown()
+
+
+@pytest.mark.slow
+def test_a_second_hostd_with_the_same_node_id_refuses_to_start(tmp_path):
+    """A cloned SD card: both nodes are "raspberrypi". The one started second sees the
+    lease renewed by the other and exits with what to change, before it claims or adopts
+    anything of the other's."""
+    share = tmp_path / "share"
+    stop, ready, held = threading.Event(), threading.Event(), {}
+
+    def first():
+        d = held["d"] = in_process_daemon(tmp_path / "a", time_scale=0, share=share,
+                                          node_id="raspberrypi")
+        ready.set()
+        try:
+            while not stop.is_set():
+                d.tick()
+                time.sleep(0.02)
+        finally:
+            d.shutdown()
+
+    runner = threading.Thread(target=first)
+    runner.start()
+    try:
+        assert ready.wait(30)
+        with pytest.raises(HostdError) as err:
+            in_process_daemon(tmp_path / "b", time_scale=0, share=share, node_id="raspberrypi")
+        assert err.value.code == "config.node_id" and err.value.key == "node_id"
+        assert held["d"].farm.holder in err.value.text() and "cloned SD card" in err.value.text()
+    finally:
+        stop.set()
+        runner.join(30)
+    # Stopped cleanly, the first one's lease is released: the node starts at once.
+    started = time.monotonic()
+    d = in_process_daemon(tmp_path / "b", time_scale=0, share=share, node_id="raspberrypi")
+    d.shutdown()
+    assert time.monotonic() - started < 5
+
+
+def test_while_another_hostd_writes_the_lease_nothing_is_taken(tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="hostd.daemon")
+    d = in_process_daemon(tmp_path, time_scale=0)
+    try:
+        d._twin_seen("0123abcd raspberrypi 4242", time.monotonic())
+        assert "another hostd uses node_id 'n1'" in d.problem
+        drop_dome(d, tmp_path, "dome.npy")
+        for _ in range(40):
+            d.tick()
+            time.sleep(0.02)
+        assert d.store.list() == [], "nothing claimed while a twin writes the lease"
+        d._twin_seen(None, time.monotonic() + d.config.lease_s + 1)
+        assert d.problem is None and "carrying on" in caplog.text
+        run_until(d, lambda: d.store.list(), what="the file to be claimed")
+    finally:
+        d.shutdown()

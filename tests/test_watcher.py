@@ -173,3 +173,38 @@ def test_watchdog_shutdown_race_is_not_reported_as_an_error(tmp_path, caplog):
         inotify_log.error("InotifyEmitter.queue_events() called when the thread is inactive")
         inotify_log.error("inotify watch limit reached")
     assert [r.getMessage() for r in caplog.records] == ["inotify watch limit reached"]
+
+
+def test_a_second_hostd_with_the_same_node_id_is_seen_by_the_lease(tmp_path):
+    """Two nodes set up from one cloned SD card keep its hostname, the default node_id:
+    each renewal says who else wrote the lease, and a start watches a lease that was
+    not released."""
+    import threading
+    drop = tmp_path / "drop"
+    a, b = Farm(drop, "pi"), Farm(drop, "pi")
+    a.setup()
+    assert a.renew_lease() is None                 # only its own writes so far
+    b.setup()
+    assert a.renew_lease() == b.holder and b.renew_lease() == a.holder
+
+    stop = threading.Event()
+
+    def renewing():
+        while not stop.wait(0.1):
+            a.renew_lease()
+
+    t = threading.Thread(target=renewing)
+    t.start()
+    try:
+        assert Farm(drop, "pi").held_by_another(1.0) == a.holder
+    finally:
+        stop.set()
+        t.join()
+    started = time.monotonic()
+    assert Farm(drop, "pi").held_by_another(0.5) is None        # a crashed: not renewed
+    assert time.monotonic() - started >= 0.5
+    a.renew_lease("stopped")
+    started = time.monotonic()
+    assert Farm(drop, "pi").held_by_another(5.0) is None        # released: no wait
+    assert time.monotonic() - started < 1.0
+    assert b.renew_lease() is None                              # a stopped is no twin
