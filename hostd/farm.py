@@ -69,6 +69,14 @@ def plan_key(input_hash, sidecar_path, profile_hash, version):
     return h.hexdigest()[:32]
 
 
+def holder_text(holder):
+    """A lease writer ("id host pid") as people read it."""
+    words = (holder or "").split()
+    if len(words) != 3:
+        return "an older hostd" if not words else holder
+    return "hostd pid %s on host %s (run %s)" % (words[2], words[1], words[0])
+
+
 class Farm:
     """This node's view of the shared drop folder."""
 
@@ -133,13 +141,13 @@ class Farm:
             return None
         log.info("node %s's lease was last written by %s and not released (a crash, or "
                  "another hostd with this node_id): watching it for %.0f s",
-                 self.node_id, text or "an older hostd", watch_s)
+                 self.node_id, holder_text(text), watch_s)
         deadline = time.monotonic() + watch_s
         while time.monotonic() < deadline:
             time.sleep(poll_s)
             now = self.lease_holder()
             if now != (text, mtime):
-                return now[0] or text or "an older hostd"
+                return now[0] or text or "?"
         return None
 
     def renew_lease(self, state="running"):

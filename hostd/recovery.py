@@ -165,8 +165,8 @@ class RecoveryMixin:
         return True
 
     def _twin_text(self, other):
-        return ("another hostd uses node_id %r on this share: it writes the same lease (its "
-                "id, host and pid: %s)" % (self.config.node_id, other))
+        return ("another hostd uses node_id %r on this share: %s writes the same lease"
+                % (self.config.node_id, farm_mod.holder_text(other)))
 
     def _twin_seen(self, other, now):
         """After a lease renewal: a second hostd with our node_id would take and adopt our

@@ -9,7 +9,9 @@ unmounted one does (its drop folder is no longer there).
 """
 
 import logging
+import os
 import shutil
+import socket
 import threading
 import time
 from pathlib import Path
@@ -403,7 +405,8 @@ def test_a_second_hostd_with_the_same_node_id_refuses_to_start(tmp_path):
         with pytest.raises(HostdError) as err:
             in_process_daemon(tmp_path / "b", time_scale=0, share=share, node_id="raspberrypi")
         assert err.value.code == "config.node_id" and err.value.key == "node_id"
-        assert held["d"].farm.holder in err.value.text() and "cloned SD card" in err.value.text()
+        pid_host = "hostd pid %d on host %s" % (os.getpid(), socket.gethostname())
+        assert pid_host in err.value.text() and "cloned SD card" in err.value.text()
     finally:
         stop.set()
         runner.join(30)
@@ -419,7 +422,8 @@ def test_while_another_hostd_writes_the_lease_nothing_is_taken(tmp_path, caplog)
     d = in_process_daemon(tmp_path, time_scale=0)
     try:
         d._twin_seen("0123abcd raspberrypi 4242", time.monotonic())
-        assert "another hostd uses node_id 'n1'" in d.problem
+        assert "another hostd uses node_id 'n1' on this share: hostd pid 4242 on host " \
+            "raspberrypi" in d.problem
         drop_dome(d, tmp_path, "dome.npy")
         for _ in range(40):
             d.tick()
