@@ -20,6 +20,8 @@ from hostd.watcher import INPUT_SUFFIXES
 
 log = logging.getLogger("hostd.daemon")
 FULL_RETRY_S = 30.0     # while the job database cannot grow: how often to try again
+# What can keep a node from taking work (the page shows the texts, /metrics the kinds).
+PROBLEMS = ("disk_full", "share", "stuck", "node_id", "damaged")
 TWIN_FIX = ("give each node its own node_id in hostd.yaml (by default it is the hostname, "
             "which a cloned SD card keeps), then restart both")
 
@@ -194,14 +196,16 @@ class RecoveryMixin:
             with self._full_ok():
                 self._resync()
 
+    def problems(self):
+        """What keeps this node from taking work, by kind (one of :data:`PROBLEMS`)."""
+        found = {"disk_full": self._full.text() if self._full is not None else None,
+                 "share": self._share_text(self._share) if self._share is not None else None,
+                 "stuck": self.watch.problem if self.watch is not None else None,
+                 "node_id": self._twin,
+                 "damaged": self._damaged if any(s.paused for s in self.slots) else None}
+        return {kind: text for kind, text in found.items() if text}
+
     @property
     def problem(self):
-        """What keeps this node from taking work, for people (None: nothing)."""
-        texts = [e.text() if isinstance(e, HostdError) else self._share_text(e)
-                 for e in (self._full, self._share) if e is not None]
-        if self._damaged and any(s.paused for s in self.slots):
-            texts.append(self._damaged)
-        if self._twin:
-            texts.append(self._twin)
-        stuck = self.watch.problem if self.watch is not None else None
-        return "; ".join(texts + ([stuck] if stuck else [])) or None
+        """The same for people, in one line (None: nothing)."""
+        return "; ".join(self.problems().values()) or None

@@ -86,7 +86,7 @@ def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         # The printer finished; the store could not take it, so the slot still holds it.
         assert slot.link_job.snapshot()["result"] == "done"
         assert slot.job_id == first and d.store.get(first)["state"] == J.PRINTING
-        assert d.problem and "cannot record jobs" in d.problem
+        assert "cannot record jobs" in d.problem and list(d.problems()) == ["disk_full"]
         assert [j["name"] for j in d.store.list()] == ["first.npy"]
         assert pings.watchdog_pings > pings_before, "the watchdog must be fed while printing"
         full_lines = [r for r in caplog.records if "cannot record jobs" in r.getMessage()]
@@ -148,7 +148,7 @@ def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_di
             d.tick()
             time.sleep(0.02)
         assert not drop.exists(), "the drop folder must not be recreated on the local disk"
-        assert "cannot write to the share" in d.problem
+        assert "cannot write to the share" in d.problem and list(d.problems()) == ["share"]
         assert d.notify.watchdog_pings >= pings + 2, "the watchdog must be fed while printing"
         assert slot.job_id == job_id and slot.link_job.snapshot()["result"] in (None, "done")
         lost = [r for r in caplog.records if "cannot write to the share" in r.getMessage()]
@@ -269,6 +269,7 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
         armed.set()
         wait_for(lambda: d.problem is not None, "the stuck loop to be noticed", 10)
         assert "not completed a round" in d.problem and "_heartbeat" in d.problem, d.problem
+        assert list(d.problems()) == ["stuck"]
         pings = d.notify.watchdog_pings
         time.sleep(1.5)
         assert d.notify.watchdog_pings >= pings + 3, "fed while the print runs"
@@ -367,6 +368,7 @@ def test_after_a_damaged_job_database_the_claimed_files_wait_for_a_person(tmp_pa
         [job] = d.store.list()
         assert job["rel_path"] == "dome.npy" and job["state"] == J.QUEUED
         assert all(s.paused for s in d.slots) and "job database was damaged" in d.problem
+        assert list(d.problems()) == ["damaged"]
         assert list(db.parent.glob("jobs.sqlite.damaged-*"))
         run_until(d, lambda: d.store.get(job["id"])["state"] == J.READY, what="the plan")
         for _ in range(20):
@@ -423,7 +425,7 @@ def test_while_another_hostd_writes_the_lease_nothing_is_taken(tmp_path, caplog)
     try:
         d._twin_seen("0123abcd raspberrypi 4242", time.monotonic())
         assert "another hostd uses node_id 'n1' on this share: hostd pid 4242 on host " \
-            "raspberrypi" in d.problem
+            "raspberrypi" in d.problem and list(d.problems()) == ["node_id"]
         drop_dome(d, tmp_path, "dome.npy")
         for _ in range(40):
             d.tick()

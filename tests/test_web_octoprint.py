@@ -32,7 +32,9 @@ def fake_daemon(node, state="printing", with_job=True):
                            job_id=node.printing if with_job else None,
                            link_job=FakeLinkJob(1, 4) if with_job else None, error=None,
                            config=node.config.printers[0])
-    return SimpleNamespace(slots=[slot], problem=None, dropped=lambda: [])
+    return SimpleNamespace(slots=[slot], problem="share: gone", dropped=lambda: [
+        {"file": "a.npy", "bytes": 10, "complete": False, "this_node": True}],
+        problems=lambda: {"share": "share: gone"})
 
 
 @pytest.fixture
@@ -136,6 +138,13 @@ def test_metrics(live):
     assert m[("hostd_plan_duration_seconds_sum", ())] == 12.5
     assert m[("hostd_plan_duration_seconds_bucket", (("le", "10.0"),))] == 0
     assert m[("hostd_plan_duration_seconds_bucket", (("le", "30.0"),))] == 1
+    assert m[("hostd_problem", (("kind", "share"),))] == 1
+    assert m[("hostd_problem", (("kind", "stuck"),))] == 0
+    assert m[("hostd_drop_folder_files", (("state", "copying"),))] == 0   # gone meanwhile
+    (live.config.drop_dir / "a.npy").write_bytes(b"1234567890")
+    m = _samples(live.client.get("/metrics").get_data(as_text=True))
+    assert m[("hostd_drop_folder_files", (("state", "copying"),))] == 1
+    assert m[("hostd_drop_folder_files", (("state", "waiting"),))] == 0
 
 
 def test_page_shows_live_values(live):

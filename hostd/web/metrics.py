@@ -8,6 +8,11 @@
 - ``hostd_planner_starvation_seconds_total{printer}`` time the printer's move planner ran
   dry between moves (known for the built-in simulator only; a real Marlin does not say)
 - ``hostd_plan_duration_seconds``                     histogram of plan durations (planned jobs)
+- ``hostd_problem{kind}``                             1 while it keeps the node from taking work:
+  disk_full (job database), share (cannot be written), stuck (the run loop), node_id (another
+  hostd uses it), damaged (job database replaced, printers held)
+- ``hostd_drop_folder_files{state}``                  inputs in the drop folder that are no job
+  yet: copying, waiting
 """
 
 import re
@@ -82,6 +87,20 @@ class _Collector:
             if p["starvation_s"] is not None:
                 starve.add_metric([p["name"]], p["starvation_s"])
         yield from (temp, target, up, lines, resends, starve)
+
+        if v.daemon is not None:
+            from hostd.recovery import PROBLEMS
+            now = v.daemon.problems()
+            problem = GaugeMetricFamily("hostd_problem", "1 while it keeps the node from "
+                                        "taking work", labels=["kind"])
+            for kind in PROBLEMS:
+                problem.add_metric([kind], 1.0 if kind in now else 0.0)
+            dropped = GaugeMetricFamily("hostd_drop_folder_files", "Inputs in the drop folder "
+                                        "that are no job yet", labels=["state"])
+            files = v.drop_folder()
+            for state, complete in (("copying", False), ("waiting", True)):
+                dropped.add_metric([state], sum(1 for f in files if f["complete"] == complete))
+            yield from (problem, dropped)
 
         durations = plan_durations(v.store)
         buckets = [(str(float(b)), sum(1 for d in durations if d <= b)) for b in PLAN_BUCKETS_S]
