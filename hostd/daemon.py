@@ -413,8 +413,10 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         printers = []
         for slot in self.slots:
             snap = slot.link_job.snapshot() if slot.link_job is not None else None
+            job = self.store.get(slot.job_id) if slot.job_id is not None else None
             printers.append({"name": slot.name, "profile": slot.config.profile,
                              "state": slot.state, "paused": slot.paused, "job": slot.job_id,
+                             "job_name": job["name"] if job else None,
                              "error": slot.error, "progress": round(snap["confirmed"] / snap[
                                  "total"], 4) if snap and snap["total"] else None})
         queued = len(self.store.list([J.QUEUED, J.PLANNING, J.READY]))

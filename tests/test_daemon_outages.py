@@ -139,6 +139,7 @@ def test_a_lost_share_keeps_the_print_going_and_is_not_recreated_on_the_local_di
     drop = d.config.drop_dir
     try:
         job_id, slot = start_print(d, tmp_path), d.slots[0]
+        assert d.status()["printers"][0]["job_name"] == "dome.npy"   # for the farm view
 
         drop.rename(drop.with_name("drop.away"))     # the share's drop folder is gone
         pings = d.notify.watchdog_pings

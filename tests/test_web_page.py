@@ -137,6 +137,8 @@ def test_page_shows_a_file_left_for_a_free_printer_while_peers_share_the_folder(
         assert [(f["file"], f["complete"], f["this_node"]) for f in left] == [
             ({"a.npy": "b.npy", "b.npy": "a.npy"}[taken], True, True)]
         assert "waiting for a printer" in client.get("/").get_data(as_text=True)
+        farm = client.get("/farm").get_data(as_text=True)
+        assert "not taken by any node yet: 1 waiting, 0 still being copied" in farm
     finally:
         d.shutdown()
 

@@ -126,7 +126,7 @@ def create_app(config, store=None, daemon=None):
     def farm():
         v = api.view()
         return render_template("farm.html", node_id=v.config.node_id, nodes=v.nodes(),
-                               now=time.time())
+                               dropped=v.drop_folder(), now=time.time())
 
     # -- plain-HTML actions (no JavaScript) --------------------------------------------------
 
