@@ -118,7 +118,7 @@ def is_damage(exc):
     not merely busy or full."""
     code = getattr(exc, "sqlite_errorcode", None)   # Python 3.11+; extended codes
     if code is not None:
-        return code & 0xFF in (11, 26)
+        return (code & 0xFF) in (11, 26)
     text = str(exc)
     return "malformed" in text or "not a database" in text
 
