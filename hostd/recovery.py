@@ -198,9 +198,11 @@ class RecoveryMixin:
 
     def problems(self):
         """What keeps this node from taking work, by kind (one of :data:`PROBLEMS`)."""
-        found = {"disk_full": self._full.text() if self._full is not None else None,
-                 "share": self._share_text(self._share) if self._share is not None else None,
-                 "stuck": self.watch.problem if self.watch is not None else None,
+        # Asked from the web's threads while the loop sets and clears these: read once.
+        full, share, watch = self._full, self._share, self.watch
+        found = {"disk_full": full.text() if full is not None else None,
+                 "share": self._share_text(share) if share is not None else None,
+                 "stuck": watch.problem if watch is not None else None,
                  "node_id": self._twin,
                  "damaged": self._damaged if any(s.paused for s in self.slots) else None}
         return {kind: text for kind, text in found.items() if text}
