@@ -8,6 +8,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -192,3 +193,31 @@ def in_process_daemon(tmp_path, time_scale, **extra):
     d = daemon_mod.Daemon(config, notifier=Pings())
     d.setup()
     return d
+
+
+@contextlib.contextmanager
+def ticking_daemon(tmp_path, time_scale, **extra):
+    """:func:`in_process_daemon` with its loop ticking on a thread of its own (which owns
+    the daemon and its store, as the run loop does) until the block ends; yields it."""
+    stop, ready, held = threading.Event(), threading.Event(), {}
+
+    def loop():
+        try:
+            d = held["d"] = in_process_daemon(tmp_path, time_scale, **extra)
+        finally:
+            ready.set()
+        try:
+            while not stop.is_set():
+                d.tick()
+                time.sleep(0.02)
+        finally:
+            d.shutdown()
+
+    runner = threading.Thread(target=loop)
+    runner.start()
+    try:
+        assert ready.wait(30) and "d" in held, "the daemon did not set up"
+        yield held["d"]
+    finally:
+        stop.set()
+        runner.join(30)

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from daemon_helpers import fill_store as fill
-from daemon_helpers import Pings, in_process_daemon, make_room, write_dome
+from daemon_helpers import Pings, in_process_daemon, make_room, ticking_daemon, write_dome
 from hostd import daemon as daemon_mod
 from hostd import jobs as J
 from hostd import recovery, watchdog
@@ -231,11 +231,15 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
     again."""
     monkeypatch.setattr(watchdog, "STALL_S", 1.0)
     caplog.set_level(logging.INFO, logger="hostd.daemon")
-    gate, armed, stop, ready = (threading.Event() for _ in range(4))
-    held = {}
+    gate, armed = threading.Event(), threading.Event()
 
-    def loop():                       # the loop's thread owns the daemon and its store
-        d = held["d"] = in_process_daemon(tmp_path, time_scale=0.01)
+    def wait_for(predicate, what, timeout_s=60.0):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            assert time.monotonic() < deadline, "timed out waiting for " + what
+            time.sleep(0.05)
+
+    with ticking_daemon(tmp_path, time_scale=0.01) as d:
         publish = d.farm.publish_status
 
         def hanging_publish(status):  # the share's status folder, not answering
@@ -244,64 +248,44 @@ def test_a_loop_stuck_on_a_share_that_does_not_answer_ends_no_print(
             return publish(status)
 
         d.farm.publish_status = hanging_publish
-        ready.set()
         try:
-            while not stop.is_set():
-                d.tick()
-                time.sleep(0.02)
+            store = J.JobStore(d.config.db_path)
+            drop_dome(d, tmp_path, "dome.npy")
+            wait_for(lambda: d.slots[0].job_id is not None, "the print to start")
+            job_id, link = d.slots[0].job_id, d.slots[0].link_job
+            armed.set()
+            wait_for(lambda: d.problem is not None, "the stuck loop to be noticed", 10)
+            assert "not completed a round" in d.problem and "_heartbeat" in d.problem, d.problem
+            assert list(d.problems()) == ["stuck"]
+            pings = d.notify.watchdog_pings
+            time.sleep(1.5)
+            assert d.notify.watchdog_pings >= pings + 3, "fed while the print runs"
+            assert link.snapshot()["result"] is None and link.snapshot()["confirmed"] > 0
+            stuck = [r for r in caplog.records if "not completed a round" in r.getMessage()]
+            assert len(stuck) == 1 and stuck[0].levelno == logging.ERROR
+            # The print ends while the loop is stuck: its outcome is not recorded yet, and a
+            # restart would leave it "interrupted", so systemd still hears that hostd lives.
+            wait_for(lambda: link.snapshot()["result"] is not None, "the print to end", 120)
+            pings = d.notify.watchdog_pings
+            time.sleep(1.0)
+            assert d.notify.watchdog_pings >= pings + 2, "fed until the print's end is recorded"
+            assert store.get(job_id)["state"] == J.PRINTING
+
+            armed.clear()
+            gate.set()
+            wait_for(lambda: d.problem is None, "the loop to move again", 10)
+            assert "moves again" in caplog.text
+            wait_for(lambda: store.get(job_id)["state"] == J.DONE, "the print to be filed", 120)
+
+            gate.clear()
+            armed.set()                   # stuck again, with nothing printing
+            wait_for(lambda: d.problem is not None, "the second stall", 10)
+            pings = d.notify.watchdog_pings
+            time.sleep(1.0)
+            assert d.notify.watchdog_pings == pings, "not fed: a restart costs no print"
         finally:
-            d.shutdown()
-
-    def wait_for(predicate, what, timeout_s=60.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            assert time.monotonic() < deadline, "timed out waiting for " + what
-            time.sleep(0.05)
-
-    runner = threading.Thread(target=loop)
-    runner.start()
-    try:
-        assert ready.wait(30)
-        d = held["d"]
-        store = J.JobStore(d.config.db_path)
-        drop_dome(d, tmp_path, "dome.npy")
-        wait_for(lambda: d.slots[0].job_id is not None, "the print to start")
-        job_id, link = d.slots[0].job_id, d.slots[0].link_job
-        armed.set()
-        wait_for(lambda: d.problem is not None, "the stuck loop to be noticed", 10)
-        assert "not completed a round" in d.problem and "_heartbeat" in d.problem, d.problem
-        assert list(d.problems()) == ["stuck"]
-        pings = d.notify.watchdog_pings
-        time.sleep(1.5)
-        assert d.notify.watchdog_pings >= pings + 3, "fed while the print runs"
-        assert link.snapshot()["result"] is None and link.snapshot()["confirmed"] > 0
-        stuck = [r for r in caplog.records if "not completed a round" in r.getMessage()]
-        assert len(stuck) == 1 and stuck[0].levelno == logging.ERROR
-        # The print ends while the loop is stuck: its outcome is not recorded yet, and a
-        # restart would leave it "interrupted", so systemd still hears that hostd lives.
-        wait_for(lambda: link.snapshot()["result"] is not None, "the print to end", 120)
-        pings = d.notify.watchdog_pings
-        time.sleep(1.0)
-        assert d.notify.watchdog_pings >= pings + 2, "fed until the print's end is recorded"
-        assert store.get(job_id)["state"] == J.PRINTING
-
-        armed.clear()
-        gate.set()
-        wait_for(lambda: d.problem is None, "the loop to move again", 10)
-        assert "moves again" in caplog.text
-        wait_for(lambda: store.get(job_id)["state"] == J.DONE, "the print to be filed", 120)
-
-        gate.clear()
-        armed.set()                   # stuck again, with nothing printing
-        wait_for(lambda: d.problem is not None, "the second stall", 10)
-        pings = d.notify.watchdog_pings
-        time.sleep(1.0)
-        assert d.notify.watchdog_pings == pings, "not fed: a restart costs no print"
-    finally:
-        armed.clear()
-        gate.set()
-        stop.set()
-        runner.join(30)
+            armed.clear()
+            gate.set()
 
 
 class Clock:
@@ -388,31 +372,12 @@ def test_a_second_hostd_with_the_same_node_id_refuses_to_start(tmp_path):
     lease renewed by the other and exits with what to change, before it claims or adopts
     anything of the other's."""
     share = tmp_path / "share"
-    stop, ready, held = threading.Event(), threading.Event(), {}
-
-    def first():
-        d = held["d"] = in_process_daemon(tmp_path / "a", time_scale=0, share=share,
-                                          node_id="raspberrypi")
-        ready.set()
-        try:
-            while not stop.is_set():
-                d.tick()
-                time.sleep(0.02)
-        finally:
-            d.shutdown()
-
-    runner = threading.Thread(target=first)
-    runner.start()
-    try:
-        assert ready.wait(30)
+    with ticking_daemon(tmp_path / "a", time_scale=0, share=share, node_id="raspberrypi"):
         with pytest.raises(HostdError) as err:
             in_process_daemon(tmp_path / "b", time_scale=0, share=share, node_id="raspberrypi")
         assert err.value.code == "config.node_id" and err.value.key == "node_id"
         pid_host = "hostd pid %d on host %s" % (os.getpid(), socket.gethostname())
         assert pid_host in err.value.text() and "cloned SD card" in err.value.text()
-    finally:
-        stop.set()
-        runner.join(30)
     # Stopped cleanly, the first one's lease is released: the node starts at once.
     started = time.monotonic()
     d = in_process_daemon(tmp_path / "b", time_scale=0, share=share, node_id="raspberrypi")
