@@ -139,6 +139,61 @@ def test_job_detail_with_report(node):
     assert node.client.get("/api/jobs/" + node.printing[:-2]).status_code == 404
 
 
+def test_download_from_a_share_that_does_not_answer_gives_503_not_a_held_thread(
+        node, monkeypatch):
+    """The outboxes' share stops answering (an NFS server rebooting): a download
+    answers 503 with what to do within seconds instead of holding a server thread
+    until the share is back; a share that stops in the middle of a download ends it.
+    Once the share answers, the same download works."""
+    from hostd.web import view as view_mod
+    gate = threading.Event()
+    confined = view_mod._open_confined
+
+    def hanging(*args):
+        gate.wait(30)
+        return confined(*args)
+
+    url = "/api/jobs/%s/files/dome.gcode" % node.printing
+    monkeypatch.setattr(view_mod, "_open_confined", hanging)
+    try:
+        t = time.monotonic()
+        r = node.client.get(url)
+        assert r.status_code == 503 and time.monotonic() - t < 5
+        assert "does not answer" in r.json["error"] and "try again" in r.json["error"]
+        t = time.monotonic()
+        assert node.client.get(url).status_code == 503 and time.monotonic() - t < 1
+    finally:
+        gate.set()
+    time.sleep(0.2)
+    monkeypatch.setattr(view_mod, "_open_confined", confined)
+    whole = node.client.get(url)
+    assert whole.status_code == 200 and b"LAYER:1" in whole.data
+    assert whole.content_length == len(whole.data)
+
+    stall = threading.Event()
+
+    class Stalling(io.BytesIO):
+        def read(self, n=-1):
+            if self.tell():
+                stall.wait(30)
+            return super().read(min(n, 1000) if n and n > 0 else 1000)
+
+    def stalling(*args):
+        f, st = confined(*args)
+        with f:
+            return Stalling(f.read()), st
+
+    monkeypatch.setattr(view_mod, "_open_confined", stalling)
+    try:
+        t = time.monotonic()
+        r = node.client.get(url, buffered=False)
+        with pytest.raises(OSError):
+            b"".join(r.response)
+        assert time.monotonic() - t < 5
+    finally:
+        stall.set()
+
+
 def test_download_confined_to_outbox(node, tmp_path):
     base = "/api/jobs/%s/files/" % node.printing
     r = node.client.get(base + "dome.gcode")

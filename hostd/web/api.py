@@ -210,41 +210,23 @@ def job(job_id):
     return jsonify(v.job_info(row, with_report=True))
 
 
-def safe_file(job_id, name):
-    """The path of ``name`` inside the job's outbox, or None (traversal, symlink, missing)."""
-    v = view()
-    row = v.job(job_id)
-    if row is None or not row.get("outbox"):
-        return None
-    if not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name \
-            or name.startswith("."):
-        return None
-    outbox = Path(row["outbox"])
-    root = Path(v.config.outbox_dir).resolve()
-    try:
-        real_outbox = outbox.resolve(strict=True)
-    except OSError:
-        return None
-    if real_outbox.parent != root:
-        return None
-    path = real_outbox / name
-    try:
-        st = os.lstat(path)
-    except OSError:
-        return None
-    import stat as _stat
-    if not _stat.S_ISREG(st.st_mode) or path.resolve().parent != real_outbox:
-        return None
-    return path
-
-
 @bp.get("/api/jobs/<job_id>/files/<name>")
 def job_file(job_id, name):
-    path = safe_file(job_id, name)
-    if path is None:
+    from hostd.web.view import SHARE_HUNG
+    opened = view().outbox_file(job_id, name)
+    if opened is SHARE_HUNG:
+        return error(503, "the folder holding job %s's files does not answer (a network share "
+                          "away?); try again once it is back. Prints running on this node "
+                          "are not affected" % job_id)
+    if opened is None:
         return error(404, "no such file in the outbox of job %s" % job_id)
-    inline = path.suffix.lower() in (".png", ".svg", ".json")
-    return send_file(path, as_attachment=not inline, download_name=path.name, max_age=10)
+    f, st = opened
+    inline = Path(name).suffix.lower() in (".png", ".svg", ".json")
+    resp = send_file(f, as_attachment=not inline, download_name=name, max_age=10,
+                     last_modified=st.st_mtime, etag="%d-%d" % (st.st_mtime_ns, st.st_size))
+    if resp.status_code == 200:
+        resp.content_length = st.st_size
+    return resp
 
 
 # -- actions ------------------------------------------------------------------------------

@@ -96,13 +96,9 @@ def job():
         row = v.job(job["id"])
         gcode = next((f for f in job["files"] if f.endswith(".gcode")), None)
         size = date = None
-        if gcode and row and row.get("outbox"):
-            import os
-            try:
-                st = os.stat(os.path.join(row["outbox"], gcode))
-                size, date = st.st_size, int(st.st_mtime)
-            except OSError:
-                pass
+        st = v.outbox_stat(row, gcode) if gcode and row else None
+        if st is not None:
+            size, date = st.st_size, int(st.st_mtime)
         file_ = {"name": gcode or job["name"], "display": job["name"], "path": gcode,
                  "origin": "local", "size": size, "date": date}
         report = v.report(row) if row else None

@@ -7,6 +7,7 @@ live values (state, temperatures, line counters) are copies the driver thread ke
 
 import bisect
 import concurrent.futures
+import errno
 import json
 import os
 import stat
@@ -40,6 +41,9 @@ def _downsample(samples, n=HISTORY_POINTS):
     return [samples[int(i * step)] for i in range(n - 1)] + [samples[-1]]
 
 
+SHARE_HUNG = object()   # what a share read returns when it did not answer in time
+
+
 class _ShareReads:
     """Reads of the share for the web threads, given up after ``timeout_s``.
 
@@ -65,6 +69,56 @@ class _ShareReads:
         except concurrent.futures.TimeoutError:
             self._hung = future
             return default
+
+
+class ShareFile:
+    """An outbox file read through :class:`_ShareReads`: a read that does not answer
+    in time raises OSError, which ends the download, instead of holding the server
+    thread until the share comes back."""
+
+    # One hand-over to the helper thread per MB: servers ask for 32 kB at a time.
+    READ_AHEAD = 1 << 20
+
+    def __init__(self, share, f):
+        self._share, self._f = share, f
+        self._buf = memoryview(b"")
+
+    def read(self, n=-1):
+        if n is None or n < 0:
+            n = 1 << 62
+        if not self._buf:
+            data = self._share.call(SHARE_HUNG, self._f.read, max(n, self.READ_AHEAD))
+            if data is SHARE_HUNG:
+                raise OSError(errno.ETIMEDOUT, "the share stopped answering during a download")
+            self._buf = memoryview(data)
+        out, self._buf = self._buf[:n], self._buf[n:]
+        return bytes(out)
+
+    def close(self):
+        self._share.call(None, self._f.close)
+
+
+def _open_confined(root, outbox, name):
+    """(open binary file, os.stat_result) of ``name`` in ``outbox``, or None.
+
+    None for anything but a regular file directly inside an outbox directly inside
+    ``root``: no traversal, no symlinks (checked again on the open descriptor).
+    """
+    try:
+        real_outbox = Path(outbox).resolve(strict=True)
+        if real_outbox.parent != Path(root).resolve():
+            return None
+        path = real_outbox / name
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None
+        f = open(path, "rb", opener=lambda p, flags: os.open(p, flags | os.O_NOFOLLOW))
+    except OSError:
+        return None
+    st = os.fstat(f.fileno())
+    if not stat.S_ISREG(st.st_mode):
+        f.close()
+        return None
+    return f, st
 
 
 class _FileCache:
@@ -153,6 +207,36 @@ class NodeView:
     def job(self, job_id):
         row = self.store.db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
         return dict(row) if row else None
+
+    def outbox_file(self, job_id, name):
+        """Job ``job_id``'s outbox file ``name`` for a download: (:class:`ShareFile`,
+        os.stat_result), None when there is no such file (or the name tries to leave
+        the outbox), or :data:`SHARE_HUNG` when the outbox's share does not answer."""
+        row = self.job(job_id)
+        if row is None or not row.get("outbox"):
+            return None
+        if not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name \
+                or name.startswith("."):
+            return None
+        opened = self._share.call(SHARE_HUNG, _open_confined, self.config.outbox_dir,
+                                  row["outbox"], name)
+        if opened is None or opened is SHARE_HUNG:
+            return opened
+        f, st = opened
+        return ShareFile(self._share, f), st
+
+    def outbox_stat(self, job, name):
+        """os.stat_result of ``name`` in the job row's outbox, or None (missing, or the
+        share does not answer)."""
+        if not job.get("outbox"):
+            return None
+
+        def look():
+            try:
+                return os.stat(Path(job["outbox"]) / name)
+            except OSError:
+                return None
+        return self._share.call(None, look)
 
     def counts(self):
         rows = self.store.db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state")
