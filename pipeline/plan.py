@@ -15,7 +15,7 @@ import numpy as np
 from pipeline import __version__
 from pipeline import heightfield as hfio
 from pipeline.sidecar import settings as sidecar_settings
-from pipeline.flatten import flatten
+from pipeline.flatten import SIGMA_TOL, flatten
 from pipeline.geometry import signed_areas_2d
 from pipeline.mesh import build_mesh
 from pipeline.simplify import simplify
@@ -62,6 +62,44 @@ def fold_area_fraction(xy, faces):
     area = signed_areas_2d(xy, faces)
     total = np.abs(area).sum()
     return float(-area[area < 0].sum() / total) if total > 0 else 0.0
+
+
+def layout_problems(flat, fold_fraction, lim):
+    """What is wrong with a flat layout, as report problems (code, message, fix).
+
+    The fixes are the ones that helped on the real terrain of the tests
+    (``../shared/data/terrain``): there smoothing (``smooth_mm`` 3 mm instead of 1)
+    turned folded layouts into printable ones, while a lower height or more flatten
+    iterations made them fold more; so only smoothing is offered for folds.
+    """
+    problems = []
+    if flat.overlapping:
+        problems.append({
+            "code": "flatten.overlap" if fold_fraction > FOLD_LIMIT else "flatten.small_fold",
+            "message": "the flattened layout folds over itself (%d flipped triangles, %d "
+                       "boundary crossings, %.3f %% of the sheet): paths there would overlap"
+                       % (flat.flipped_triangles, flat.boundary_intersections,
+                          100 * fold_fraction),
+            "fix": "smooth away features narrower than the sheet can form: raise smooth_mm in "
+                   "the sidecar (NAME.yaml), e.g. `smooth_mm: 3` (real terrain that folds at "
+                   "the default 1 mm plans at 3 mm); a lower height or more flatten "
+                   "iterations do not help"})
+    if flat.invalid_edge_fraction > INVALID_WARN:
+        sigma = np.asarray(flat.sigma)
+        stretch = float(np.mean(sigma < lim.s_min - SIGMA_TOL))
+        over = float(np.mean(sigma > lim.s_max + SIGMA_TOL))
+        problems.append({
+            "code": "flatten.invalid_edges",
+            "message": "%.1f %% of the printing edges need a shrink outside %.3g..%.3g; the "
+                       "sheet will not reach the shape there (%.1f %% would have to stretch, "
+                       "%.1f %% shrink more than the material can)" % (
+                           100 * flat.invalid_edge_fraction, lim.s_min, lim.s_max,
+                           100 * stretch, 100 * over),
+            "fix": "see NAME.stress.png for where: edges that would have to stretch lie in "
+                   "saddles and valleys, which a sheet that only shrinks cannot form exactly "
+                   "(smoothing, smooth_mm, removes the narrow ones); edges that would shrink "
+                   "too much need a lower height there"})
+    return problems
 
 
 def plan_file(path, profile, progress=None):
@@ -128,23 +166,7 @@ def plan_file(path, profile, progress=None):
     # printable (the daemon will not print it); a few flipped triangles at the edge
     # only make paths overlap in a spot.
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
-    if flat.overlapping:
-        result.problems.append({
-            "code": "flatten.overlap" if result.fold_fraction > FOLD_LIMIT else
-                    "flatten.small_fold",
-            "message": "the flattened layout folds over itself (%d flipped triangles, %d "
-                       "boundary crossings, %.3f %% of the sheet): paths there would overlap"
-                       % (flat.flipped_triangles, flat.boundary_intersections,
-                          100 * result.fold_fraction),
-            "fix": "simplify the shape (raise min_prominence_mm or smooth_mm in the sidecar "
-                   "or profile), lower its height, or raise flatten.iterations"})
-    if flat.invalid_edge_fraction > INVALID_WARN:
-        result.problems.append({
-            "code": "flatten.invalid_edges",
-            "message": "%.1f %% of the printing edges need a shrink outside %.3g..%.3g; the "
-                       "sheet will not reach the shape there" % (
-                           100 * flat.invalid_edge_fraction, lim.s_min, lim.s_max),
-            "fix": "see NAME.stress.png for where; lower the height or simplify"})
+    result.problems += layout_problems(flat, result.fold_fraction, lim)
 
     t = stage("simulate", "forward simulation of the flat sheet")
     # The printed sheet can only shrink within the material's range (the G-code clamps

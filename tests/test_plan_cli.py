@@ -160,6 +160,30 @@ def test_real_terrain_plans_and_says_whether_it_is_printable(terrain_dir, tmp_pa
         assert w["code"] in r.stderr
 
 
+def test_layout_problems_name_the_fix_that_helps_and_split_the_invalid_edges():
+    """A folded layout's fix is smoothing (what turned the folded real terrain
+    printable; a lower height and more iterations made it fold more), and the
+    invalid-edge problem says how many edges would have to stretch and how many
+    shrink too much, since the two have different fixes."""
+    from types import SimpleNamespace
+    from pipeline.plan import FOLD_LIMIT, layout_problems
+    from pipeline.profile import load_profile
+    lim = load_profile("generic-0.5mm").shrink_limits
+    sigma = np.concatenate([np.full(70, 0.1), np.full(20, -0.05), np.full(10, lim.s_max + 0.1)])
+    flat = SimpleNamespace(overlapping=True, flipped_triangles=12, boundary_intersections=1,
+                           invalid_edge_fraction=0.30, sigma=sigma)
+    fold, invalid = layout_problems(flat, 2 * FOLD_LIMIT, lim)
+    assert fold["code"] == "flatten.overlap"
+    assert "smooth_mm" in fold["fix"] and "iterations do not help" in fold["fix"]
+    assert invalid["code"] == "flatten.invalid_edges"
+    assert "30.0 %" in invalid["message"]
+    assert "20.0 % would have to stretch, 10.0 % shrink more" in invalid["message"]
+    assert [p["code"] for p in layout_problems(flat, FOLD_LIMIT / 2, lim)][0] == \
+        "flatten.small_fold"
+    flat.overlapping, flat.invalid_edge_fraction = False, 0.05
+    assert layout_problems(flat, 0.0, lim) == []
+
+
 def test_fold_area_fraction_measures_flipped_area():
     from pipeline.plan import fold_area_fraction
     xy = np.array([[0, 0], [1, 0], [0, 1], [1, 1.0]])
