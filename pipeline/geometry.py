@@ -76,24 +76,28 @@ class SimSheet:
     t: np.ndarray
 
 
-def unique_edges(faces):
+def unique_edges(faces, return_counts=False):
     """Unique undirected edges of a triangle mesh.
 
     Parameters
     ----------
     faces : (m, 3) int
+    return_counts : bool
+        Also return how many faces share each edge.
 
     Returns
     -------
     edges : (e, 2) int, sorted pairs, lexicographically sorted rows
+    counts : (e,) int, with ``return_counts``
     """
     faces = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     e.sort(axis=1)
     n = int(faces.max(initial=0)) + 1
     # One int64 key per edge: a 1-D unique is far faster than unique(axis=0).
-    key = np.unique(e[:, 0] * n + e[:, 1])
-    return np.stack([key // n, key % n], axis=1)
+    key, counts = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)
+    edges = np.stack([key // n, key % n], axis=1)
+    return (edges, counts) if return_counts else edges
 
 
 def edge_lengths(points, edges):

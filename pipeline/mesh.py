@@ -431,6 +431,22 @@ def _inner_point(ring_xy):
     return np.array([c.x, c.y])
 
 
+def refuse_overlap(points3, edges, shared):
+    """Raise MeshingError ``mesh.overlap`` where an edge ((e, 2) int) is shared by more
+    than two faces (``shared`` (e,) int): cells overlap, and nothing after meshing can
+    work on such a sheet (a fault of the mesher, told as one rather than a crash)."""
+    if not (shared > 2).any():
+        return
+    bad = edges[shared > 2]
+    x, y = points3[bad[0], :2].mean(axis=0)
+    raise MeshingError(
+        "the mesher made overlapping triangles (%d edges shared by more than two), a fault "
+        "of hostd's mesher on this shape" % len(bad), code="mesh.overlap",
+        where="x %.1f mm, y %.1f mm" % (x, y),
+        fix="plan it with a slightly different smooth_mm in the sidecar (e.g. 0.5 mm more), "
+            "and report the file so the mesher can be fixed")
+
+
 def _make_mesh(points3, faces, printing, level, graph, iso_id, info, sheet=None):
     faces = np.asarray(faces, dtype=np.int64)
     used = np.zeros(len(points3), bool)
@@ -444,7 +460,8 @@ def _make_mesh(points3, faces, printing, level, graph, iso_id, info, sheet=None)
         sheet = SimSheet(faces=remap[sheet.faces], dropped=remap[sheet.dropped[ok]],
                          between=remap[sheet.between[ok]], t=sheet.t[ok])
     flipped = signed_areas_2d(points3, faces) <= 0
-    edges = unique_edges(faces)
+    edges, shared = unique_edges(faces, return_counts=True)
+    refuse_overlap(points3, edges, shared)
     pr = np.asarray(printing, dtype=np.int64).reshape(-1, 3)
     pr = pr[used[pr[:, 0]] & used[pr[:, 1]]]
     pe = np.sort(remap[pr[:, :2]], axis=1)

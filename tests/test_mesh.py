@@ -133,3 +133,41 @@ def test_simulation_sheet_is_a_coarser_disk_over_the_same_cells(name):
     assert np.linalg.norm(b - a, axis=1).max() <= 2.0 + 0.3
     on_chord = (1 - sh.t)[:, None] * a + sh.t[:, None] * b
     assert np.linalg.norm(on_chord - m.vertices[sh.dropped], axis=1).max() < 0.5
+
+
+def test_overlapping_cells_are_refused_with_where_not_a_crash():
+    """Three triangles on one edge (cells that overlap) would crash the flattening
+    with a bare ValueError; the mesher refuses them as ``mesh.overlap`` with the place."""
+    from pipeline.errors import MeshingError
+    from pipeline.mesh import refuse_overlap
+    points = np.array([[0, 0, 0], [10, 0, 0], [5, 5, 0], [5, -5, 0], [6, 4, 0.0]])
+    good = np.array([[0, 1, 2], [1, 0, 3]])
+    refuse_overlap(points, *unique_edges(good, return_counts=True))
+    bad = np.vstack([good, [[0, 1, 4]]])
+    with pytest.raises(MeshingError) as e:
+        refuse_overlap(points, *unique_edges(bad, return_counts=True))
+    assert e.value.code == "mesh.overlap" and e.value.where == "x 5.0 mm, y 0.0 mm"
+    assert "smooth_mm" in e.value.fix
+
+
+def test_real_terrain_that_meshes_into_overlapping_cells_gets_mesh_overlap(terrain_dir):
+    """Found on vancouver_island_south with a steeper flat-area ramp (flat_slope 0.15):
+    four edges with three or four faces. It used to end the plan with "ValueError:
+    non-manifold mesh" from the flattening (``plan.crashed`` in the daemon)."""
+    from pipeline import heightfield as hfio
+    from pipeline.errors import MeshingError
+    from pipeline.mesh import build_mesh
+    from pipeline.profile import load_profile
+    from pipeline.sidecar import settings
+    from pipeline.simplify import simplify
+    from pipeline.validate import validate
+    prof = load_profile("generic-0.5mm")
+    hf, side = hfio.load(terrain_dir / "vancouver_island_south.png", profile=prof)
+    opts = settings(side, prof)
+    hf, _ = validate(hf, opts["max_fill_mm"], bed_mm=prof.bed_mm)
+    hf, _ = simplify(hf, opts["min_prominence_mm"], opts["smooth_mm"])
+    mp = prof.mesh
+    with pytest.raises(MeshingError) as e:
+        build_mesh(hf, isoline_step_mm=mp.isoline_step_mm, l_u_mm=mp.l_u_mm,
+                   gradient_spacing_mm=mp.gradient_spacing_mm, flat_slope=0.15)
+    assert e.value.code == "mesh.overlap"
