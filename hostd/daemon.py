@@ -242,6 +242,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self.cache.export(job["plan_key"], outbox, Path(job["name"]).stem if not
                           name_problem(job["name"]) else Path(job["input_path"]).stem)
         self.store.set_state(job["id"], J.READY, message, outbox=str(outbox))
+        log.info("job %s: %s ready (%s), outputs in %s", job["id"], job["name"], message, outbox)
 
     def _gcode(self, job):
         if not job["outbox"]:
@@ -284,6 +285,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             slot.name, job["copies_done"] + 1, job["copies"]), printer=slot.name,
             started_at=job["started_at"] or time.time(), progress=0.0)
         self.store.set_printer(slot.name, job_id=job["id"])
+        log.info("job %s: printing %s on %s (copy %d of %d)", job["id"], job["name"], slot.name,
+                 job["copies_done"] + 1, job["copies"])
 
     def _spool(self, job, gcode):
         """A copy of the G-code on the local disk to print from: the outbox is often on the
@@ -346,11 +349,16 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             else:
                 message += ("; its file had left the claim folder (released to other nodes "
                             "while this node could not renew its lease), so it is not in done/")
-            return lambda: self.store.set_state(job["id"], J.DONE, message, **values)
+
+            def record():
+                self.store.set_state(job["id"], J.DONE, message, **values)
+                log.info("job %s: %s %s", job["id"], job["name"], message)
+            return record
         if snap["result"] == "cancelled":
-            return self._filing(job, "The print of %s was %s." % (
-                job["name"], snap["error"] or "cancelled by a person (hostd cancel)"),
-                state=J.CANCELLED)
+            reason = "The print of %s was %s." % (
+                job["name"], snap["error"] or "cancelled by a person (hostd cancel)")
+            log.info("job %s: %s", job["id"], reason)
+            return self._filing(job, reason, state=J.CANCELLED)
         return self._failing(job, "The printer %s stopped the print: %s. Check the printer, "
                                   "then `hostd requeue %s`." % (slot.name, snap["error"] or
                                                                 slot.printer.last_error, job["id"]),

@@ -74,6 +74,13 @@ def test_three_files_one_invalid(tmp_path, dome, pty_sim):
         assert (share / "done" / day / (name + ".npy")).read_bytes() == dome.read_bytes()
         assert (share / "done" / day / (name + ".yaml")).exists()
     assert not [f for f in all_files(share / "drop") if not f.startswith(".")]
+    # The journal tells each job's life, not only its claim and its failure.
+    log = d.output()
+    for job in printed:
+        for line in ("job %s: %s ready (" % (job["id"], job["name"]),
+                     "job %s: printing %s on p1 (copy 1 of 1)" % (job["id"], job["name"]),
+                     "job %s: %s printed on p1 in" % (job["id"], job["name"])):
+            assert line in log, line
 
 
 def test_slow_copy_is_not_taken_early(tmp_path, dome):
@@ -248,6 +255,7 @@ def test_stop_print_on_the_printer_cancels_the_job(tmp_path, dome, pty_sim):
     reason = (tmp_path / "share" / "failed" / "dome.error.txt").read_text()
     assert "cancelled on the printer" in reason
     assert (tmp_path / "share" / "failed" / "dome.npy").read_bytes() == dome.read_bytes()
+    assert "The print of dome.npy was cancelled on the printer" in d.output()
 
 
 @pytest.mark.slow
