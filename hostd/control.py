@@ -69,10 +69,13 @@ class ControlMixin:
         folder.mkdir(parents=True, exist_ok=True)
         dest = farm_mod.unique_path(folder / src.name)
         os.rename(src, dest)
+        # The sidecar it came with, or one a person wrote beside it since (NAME.error.txt
+        # says so: a changed smooth_mm or size_mm is how most failed plans are fixed).
+        side_src = Path(job["sidecar_path"] or src.with_name(src.stem + ".yaml"))
         side = None
-        if job["sidecar_path"] and os.path.exists(job["sidecar_path"]):
+        if side_src.exists():
             side = dest.with_name(dest.stem + ".yaml")
-            os.rename(job["sidecar_path"], side)
+            os.rename(side_src, side)
         err = src.with_name(src.stem + ".error.txt")
         if err.exists():
             os.unlink(err)   # the reason is kept in the job's events

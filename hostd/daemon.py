@@ -401,8 +401,10 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         values = {}
         if os.path.exists(job["input_path"]) and Path(job["input_path"]).parent != \
                 Path(self.config.failed_dir):
-            text = "%s\n\nFile: %s\nJob: %s (node %s)\n" % (reason, job["rel_path"], job["id"],
-                                                              self.config.node_id)
+            text = ("%s\n\nFile: %s\nJob: %s (node %s)\nTo try again: change the file here, or "
+                    "its sidecar (same name, .yaml; write one if there is none), then `hostd "
+                    "requeue %s` or Requeue on the status page.\n" % (
+                        reason, job["rel_path"], job["id"], self.config.node_id, job["id"]))
             dest, side = archive_failed(job["input_path"], job["sidecar_path"],
                                         self.config.failed_dir, job["name"], text)
             values = dict(input_path=str(dest), sidecar_path=str(side) if side else None)

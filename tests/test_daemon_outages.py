@@ -402,3 +402,34 @@ def test_while_another_hostd_writes_the_lease_nothing_is_taken(tmp_path, caplog)
         run_until(d, lambda: d.store.list(), what="the file to be claimed")
     finally:
         d.shutdown()
+
+
+def test_requeue_takes_the_sidecar_a_person_wrote_beside_a_failed_file(tmp_path):
+    """A failed plan is mostly fixed in the sidecar (smooth_mm, size_mm): NAME.error.txt
+    says to write one beside the file in failed/ and requeue, and the requeue takes it
+    along, also for a file that came without one."""
+    d = in_process_daemon(tmp_path, time_scale=0)
+    try:
+        (d.config.drop_dir / "broken.png").write_bytes(b"this is not a picture")
+        deadline = time.monotonic() + 20
+        while not [j for j in d.store.list() if j["state"] == J.FAILED]:
+            assert time.monotonic() < deadline
+            d.tick()
+            time.sleep(0.05)
+        [job] = d.store.list()
+        assert job["sidecar_path"] is None
+        failed = d.config.failed_dir
+        told = (failed / "broken.error.txt").read_text()
+        assert "sidecar (same name, .yaml; write one if there is none)" in told
+        assert "hostd requeue %s" % job["id"] in told
+        (failed / "broken.yaml").write_text("smooth_mm: 3\n")
+        cli = J.JobStore(d.config.db_path)
+        req = cli.request("requeue", job["id"])
+        while cli.wait_answer(req, timeout_s=0.01) is None:
+            assert time.monotonic() < deadline
+            d.tick()
+        side = Path(d.store.get(job["id"])["sidecar_path"])
+        assert side.read_text() == "smooth_mm: 3\n" and side.parent != failed
+        assert not (failed / "broken.yaml").exists()
+    finally:
+        d.shutdown()
