@@ -371,10 +371,11 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self._unspool(slot.job_id)
         slot.job_id, slot.link_job = None, None
         self.store.update(job["id"], last_line=line)
-        self._to_failed(dict(job, last_line=line),
-                        "The print of %s was interrupted: %s (last confirmed line %d). Check the "
-                        "bed, then print it again with `hostd requeue %s`."
-                        % (job["name"], reason, line, job["id"]), state=J.INTERRUPTED,
+        text = ("The print of %s was interrupted: %s (last confirmed line %d). Check the bed, "
+                "then print it again with `hostd requeue %s`." % (job["name"], reason, line,
+                                                                   job["id"]))
+        log.warning("job %s: %s", job["id"], text)
+        self._to_failed(dict(job, last_line=line), text, state=J.INTERRUPTED,
                         code="job.interrupted")
 
     # -- endings -----------------------------------------------------------------------------------

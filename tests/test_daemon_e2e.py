@@ -196,6 +196,7 @@ def test_kill_during_printing_then_restart_is_interrupted(tmp_path, dome):
         t = time.monotonic()
         assert d.stop() == 0
         assert time.monotonic() - t < 10.0
+        assert "The print of dome.npy was interrupted: the daemon was stopped" in d.output()
     assert states(cfg) == {"dome.npy": "interrupted"}
     assert (tmp_path / "share" / "failed" / "dome.npy").exists()
 
