@@ -339,6 +339,38 @@ def test_upload_atomic_into_drop(node):
         assert r.status_code == 400, bad
 
 
+def test_upload_to_a_drop_folder_that_does_not_answer_is_refused_and_never_lands(
+        node, monkeypatch):
+    """The drop folder is on a share that stopped answering: the upload answers 503
+    within its wait instead of holding a server thread, and when the share comes back
+    the abandoned upload does not land after all (the person was told it did not)."""
+    from hostd.web import api as api_mod
+    gate = threading.Event()
+    real_save = api_mod.unique_path
+
+    def hanging(path):
+        gate.wait(30)
+        return real_save(path)
+
+    node.app.config["HOSTD_SHARE_WRITE_S"] = 1.0
+    monkeypatch.setattr(api_mod, "unique_path", hanging)
+    drop = node.config.drop_dir
+    try:
+        t = time.monotonic()
+        r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",
+                             data={"file": (io.BytesIO(b"\x93NUMPY fake"), "late.npy")})
+        assert r.status_code == 503 and time.monotonic() - t < 5
+        assert "did not answer within 1 s" in r.json["error"] and "not taken" in r.json["error"]
+    finally:
+        gate.set()
+    time.sleep(0.5)
+    assert not list(drop.glob("late*")), list(drop.iterdir())
+    monkeypatch.setattr(api_mod, "unique_path", real_save)
+    r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",
+                         data={"file": (io.BytesIO(b"\x93NUMPY fake"), "late.npy")})
+    assert r.status_code == 201 and (drop / "late.npy").read_bytes() == b"\x93NUMPY fake"
+
+
 def test_upload_size_limit(node):
     node.app.config["MAX_CONTENT_LENGTH"] = 1000
     r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",

@@ -6,6 +6,7 @@ that answer. An emergency stop is also written to the port from here at once, wh
 the daemon runs in this process, so it never waits for a tick.
 """
 
+import errno
 import hmac
 import json
 import os
@@ -125,6 +126,36 @@ def _clean_name(raw):
     return name
 
 
+def _store_upload(abandoned, folder, name, upload, sidecar):
+    """Write an upload (and sidecar) into ``folder`` under ``name`` or a free variant,
+    atomically; returns its path, or the OSError. Runs on the share helper: when the
+    request gave up waiting (``abandoned``), the parts are removed instead of renamed."""
+    parts = []
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        dest = unique_path(folder / name)
+        while os.path.lexists(dest.with_name(dest.stem + ".yaml")):
+            dest = unique_path(dest.with_name(dest.stem + "-web" + dest.suffix))
+        if sidecar is not None and sidecar.filename:
+            side_tmp = dest.with_name(dest.stem + ".yaml.part")
+            parts.append(side_tmp)
+            sidecar.save(str(side_tmp))
+        tmp = dest.with_name(dest.name + ".part")
+        parts.append(tmp)
+        upload.save(str(tmp))
+        if abandoned.is_set():
+            raise OSError(errno.ETIMEDOUT, "the request gave up waiting for the share")
+        # Sidecar first: the watcher must never see the input without it.
+        for p in parts:
+            os.rename(p, p.with_name(p.name[:-len(".part")]))
+        return dest
+    except (OSError, ValueError) as exc:   # ValueError: the request ended, its file closed
+        for p in parts:
+            if p.exists():
+                p.unlink()
+        return exc if isinstance(exc, OSError) else OSError(errno.EIO, str(exc))
+
+
 def save_upload(upload, sidecar=None, target=None):
     """Save an uploaded input (and sidecar) into the drop folder, atomically. (status, body)."""
     v = view()
@@ -141,27 +172,16 @@ def save_upload(upload, sidecar=None, target=None):
         if target not in known:
             return 400, dict(ok=False, error="no printer or profile %s on this node" % target)
         folder = folder / target
-    folder.mkdir(parents=True, exist_ok=True)
-    dest = unique_path(folder / name)
-    while os.path.lexists(dest.with_name(dest.stem + ".yaml")):
-        dest = unique_path(dest.with_name(dest.stem + "-web" + dest.suffix))
-    parts = []
-    try:
-        if sidecar is not None and sidecar.filename:
-            side_tmp = dest.with_name(dest.stem + ".yaml.part")
-            sidecar.save(str(side_tmp))
-            parts.append(side_tmp)
-        tmp = dest.with_name(dest.name + ".part")
-        upload.save(str(tmp))
-        parts.append(tmp)
-        # Sidecar first: the watcher must never see the input without it.
-        for p in parts:
-            os.rename(p, p.with_name(p.name[:-len(".part")]))
-    except OSError as exc:
-        for p in parts:
-            if p.exists():
-                p.unlink()
-        return 500, dict(ok=False, error="cannot save the upload: %s" % exc.strerror)
+    from hostd.web.view import SHARE_HUNG
+    wait_s = current_app.config.get("HOSTD_SHARE_WRITE_S", 30.0)
+    saved = v.share_write(_store_upload, folder, name, upload, sidecar, timeout_s=wait_s)
+    if saved is SHARE_HUNG:
+        return 503, dict(ok=False, error="the drop folder (%s) did not answer within %g s (a "
+                                         "network share away?): the upload was not taken; try "
+                                         "again once it answers" % (v.config.drop_dir, wait_s))
+    if isinstance(saved, OSError):
+        return 500, dict(ok=False, error="cannot save the upload: %s" % saved.strerror)
+    dest = saved
     rel = dest.relative_to(v.config.drop_dir).as_posix()
     return 201, dict(ok=True, name=dest.name, path=rel,
                      message="%s is in the drop folder; it becomes a job within a few seconds"

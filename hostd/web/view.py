@@ -59,13 +59,15 @@ class _ShareReads:
         self._pool = concurrent.futures.ThreadPoolExecutor(2, "hostd-web-share")
         self._hung = None
 
-    def call(self, default, fn, *args):
+    def call(self, default, fn, *args, timeout_s=None):
+        """``fn(*args)``, or ``default`` when it has not returned within ``timeout_s``
+        (default: the reads' 2 s) or an earlier call still hangs."""
         hung = self._hung
         if hung is not None and not hung.done():
             return default
         future = self._pool.submit(fn, *args)
         try:
-            return future.result(self.timeout_s)
+            return future.result(self.timeout_s if timeout_s is None else timeout_s)
         except concurrent.futures.TimeoutError:
             self._hung = future
             return default
@@ -224,6 +226,18 @@ class NodeView:
             return opened
         f, st = opened
         return ShareFile(self._share, f), st
+
+    def share_write(self, fn, *args, timeout_s=30.0):
+        """``fn(abandoned, *args)`` on the share helper: its result, or :data:`SHARE_HUNG`
+        when it has not returned within ``timeout_s`` (an upload to a slow share takes a
+        while; one that stops answering must not hold the server thread). ``abandoned``
+        (threading.Event) is set then, so a write that finishes later can undo itself
+        instead of landing after the person was told it did not."""
+        abandoned = threading.Event()
+        result = self._share.call(SHARE_HUNG, fn, abandoned, *args, timeout_s=timeout_s)
+        if result is SHARE_HUNG:
+            abandoned.set()
+        return result
 
     def outbox_stat(self, job, name):
         """os.stat_result of ``name`` in the job row's outbox, or None (missing, or the
