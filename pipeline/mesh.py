@@ -443,8 +443,8 @@ def refuse_overlap(points3, edges, shared):
         "the mesher made overlapping triangles (%d edges shared by more than two), a fault "
         "of hostd's mesher on this shape" % len(bad), code="mesh.overlap",
         where="x %.1f mm, y %.1f mm" % (x, y),
-        fix="plan it with a slightly different smooth_mm in the sidecar (e.g. 0.5 mm more), "
-            "and report the file so the mesher can be fixed")
+        fix="the file is not at fault: report it (with its sidecar) so the mesher can be "
+            "fixed")
 
 
 def _make_mesh(points3, faces, printing, level, graph, iso_id, info, sheet=None):

@@ -147,7 +147,7 @@ def test_overlapping_cells_are_refused_with_where_not_a_crash():
     with pytest.raises(MeshingError) as e:
         refuse_overlap(points, *unique_edges(bad, return_counts=True))
     assert e.value.code == "mesh.overlap" and e.value.where == "x 5.0 mm, y 0.0 mm"
-    assert "smooth_mm" in e.value.fix
+    assert "report it" in e.value.fix
 
 
 def test_real_terrain_that_meshes_into_overlapping_cells_gets_mesh_overlap(terrain_dir):

@@ -176,9 +176,9 @@ def save_upload(upload, sidecar=None, target=None):
     wait_s = current_app.config.get("HOSTD_SHARE_WRITE_S", 30.0)
     saved = v.share_write(_store_upload, folder, name, upload, sidecar, timeout_s=wait_s)
     if saved is SHARE_HUNG:
-        return 503, dict(ok=False, error="the drop folder (%s) did not answer within %g s (a "
-                                         "network share away?): the upload was not taken; try "
-                                         "again once it answers" % (v.config.drop_dir, wait_s))
+        return 503, dict(ok=False, error="the drop folder (%s) does not answer (a network share "
+                                         "away?): the upload was not taken; try again once it "
+                                         "answers" % v.config.drop_dir)
     if isinstance(saved, OSError):
         return 500, dict(ok=False, error="cannot save the upload: %s" % saved.strerror)
     dest = saved

@@ -45,7 +45,7 @@ SHARE_HUNG = object()   # what a share read returns when it did not answer in ti
 
 
 class _ShareReads:
-    """Reads of the share for the web threads, given up after ``timeout_s``.
+    """Reads (and uploads) of the share for the web threads, given up after ``timeout_s``.
 
     A share that stops answering (an NFS server rebooting) blocks every call on it; a
     page that waited would hold a server thread per poll, and within seconds none
