@@ -64,7 +64,7 @@ def fold_area_fraction(xy, faces):
     return float(-area[area < 0].sum() / total) if total > 0 else 0.0
 
 
-def layout_problems(flat, fold_fraction, lim):
+def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
     """What is wrong with a flat layout, as report problems (code, message, fix).
 
     The fixes are the ones that helped on the real terrain of the tests
@@ -81,9 +81,9 @@ def layout_problems(flat, fold_fraction, lim):
                        % (flat.flipped_triangles, flat.boundary_intersections,
                           100 * fold_fraction),
             "fix": "smooth away features narrower than the sheet can form: raise smooth_mm in "
-                   "the sidecar (NAME.yaml), e.g. `smooth_mm: 3` (real terrain that folds at "
+                   "the sidecar (%s), e.g. `smooth_mm: 3` (real terrain that folds at "
                    "the default 1 mm plans at 3 mm); a lower height or more flatten "
-                   "iterations do not help"})
+                   "iterations do not help" % sidecar_name})
     if flat.invalid_edge_fraction > INVALID_WARN:
         sigma = np.asarray(flat.sigma)
         stretch = float(np.mean(sigma < lim.s_min - SIGMA_TOL))
@@ -166,7 +166,8 @@ def plan_file(path, profile, progress=None):
     # printable (the daemon will not print it); a few flipped triangles at the edge
     # only make paths overlap in a spot.
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
-    result.problems += layout_problems(flat, result.fold_fraction, lim)
+    result.problems += layout_problems(flat, result.fold_fraction, lim,
+                                       Path(path).stem + ".yaml")
 
     t = stage("simulate", "forward simulation of the flat sheet")
     # The printed sheet can only shrink within the material's range (the G-code clamps
