@@ -132,6 +132,7 @@ def plan_file(path, profile, progress=None):
     t = stage("load", "reading %s" % path.name)
     hf, sidecar = hfio.load(path, profile=profile)
     result.input_hf, result.sidecar = hf, sidecar
+    hf, _ = hfio.coarsen(hf, profile.validate.working_pixel_mm)
     timing["load"] = time.perf_counter() - t
 
     opts = sidecar_settings(sidecar, profile)
@@ -211,8 +212,10 @@ def _report(path, profile, p, vrep, srep, timing):
         "profile": profile.name,
         "pipeline_version": __version__,
         "heightfield": {
-            "shape": [int(s) for s in hf.z.shape],
-            "pixel_mm": float(hf.pixel_mm),
+            "shape": [int(s) for s in p.input_hf.z.shape],
+            "pixel_mm": float(p.input_hf.pixel_mm),
+            "working_shape": [int(s) for s in hf.z.shape],
+            "working_pixel_mm": float(hf.pixel_mm),
             "longest_diameter_mm": float(vrep["longest_diameter_mm"]),
             "max_height_mm": float(vrep["max_height_mm"]),
             "filled_pits": int(vrep["filled_pits"]),

@@ -137,6 +137,7 @@ class ValidateParams:
     max_fill_mm: float = _num(2.0, strict=False)
     max_pixels: int = _num(25_000_000, integer=True)
     min_pixels: int = _num(16, lo=2, strict=False, integer=True)
+    working_pixel_mm: float = _num(0.25, strict=False)
 
 
 @dataclass(frozen=True)

@@ -131,9 +131,16 @@ def test_bad_config_and_bad_sidecar(tmp_path, dome):
 
 @pytest.mark.slow
 def test_runaway_plan_fails_its_job_only(tmp_path, dome):
-    # A 16-megapixel field passes the input checks but needs far more memory than
-    # the plan limit: its planning process dies, the other job is planned and printed.
-    cfg = write_config(tmp_path, planning={"workers": 2, "memory_mb": 700})
+    # A 16-megapixel field passes the input checks but, on a profile that keeps every
+    # pixel (validate.working_pixel_mm: 0), needs far more memory than the plan limit:
+    # its planning process dies, the other job is planned and printed.
+    from pipeline.profile import find_profile
+    keep_all = tmp_path / "keep-all-pixels.yaml"
+    keep_all.write_text(find_profile("generic-0.5mm").read_text().replace(
+        "working_pixel_mm: 0.25", "working_pixel_mm: 0"))
+    cfg = write_config(tmp_path, planning={"workers": 2, "memory_mb": 700}, printers=[
+        {"name": "p1", "profile": str(keep_all), "baud": 2000000,
+         "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0"}])
     drop_dir = tmp_path / "share" / "drop"
     big = tmp_path / "in" / "huge.npy"
     big.parent.mkdir(parents=True, exist_ok=True)

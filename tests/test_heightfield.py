@@ -416,3 +416,52 @@ def test_sidecar_all_keys_and_settings(tmp_path):
     assert s == {"max_fill_mm": 4.0, "min_prominence_mm": 1.5, "smooth_mm": p.mesh.smooth_mm}
     assert S.settings(S.Sidecar(), p)["max_fill_mm"] == p.validate.max_fill_mm
     assert S.load_sidecar(tmp_path / "missing.yaml") == S.Sidecar()
+
+
+def test_coarsen_averages_whole_blocks_keeps_the_outline_and_the_colour():
+    from pipeline.geometry import HeightField
+    z = np.arange(100, dtype=float).reshape(10, 10)
+    z[:3, :3] = np.nan                 # 9 of block (0, 0)'s 25 samples outside: it stays in
+    z[5:, 5:] = np.nan                 # block (1, 1) wholly outside
+    color = np.zeros((10, 10, 3), np.uint8)
+    color[:, 5:] = [200, 100, 50]
+    hf = HeightField(z, 0.05, color=color, source="t")
+    out, k = H.coarsen(hf, 0.25)
+    assert k == 5 and out.pixel_mm == pytest.approx(0.25) and out.z.shape == (2, 2)
+    block = z[:5, :5]
+    expect = np.array([[np.nanmean(block), z[:5, 5:].mean()], [z[5:, :5].mean(), np.nan]])
+    expect -= np.nanmin(expect)
+    np.testing.assert_allclose(out.z, expect)
+    assert out.color[0, 1].tolist() == [200, 100, 50] and out.color[1, 0].tolist() == [0, 0, 0]
+    z2 = z.copy()
+    z2[:4, :4] = np.nan                # 16 of 25 outside: the block leaves the footprint
+    assert np.isnan(H.coarsen(HeightField(z2, 0.05), 0.25)[0].z[0, 0])
+    # Already coarse enough, or switched off: untouched.
+    assert H.coarsen(hf, 0.09)[1] == 1 and H.coarsen(hf, 0.0)[0] is hf
+
+
+def test_a_fine_height_map_is_planned_on_working_samples(tmp_path):
+    """A height map with 0.05 mm pixels (1.4 megapixels for a 60 mm dome) is planned
+    on 0.25 mm samples; the report keeps the input's shape and pixel and says what
+    was worked on, and the result matches the dome given at 0.25 mm directly."""
+    from pipeline import shapes
+    from pipeline.plan import plan_file
+    from pipeline.profile import load_profile
+    prof = load_profile("generic-0.5mm")
+    fine = shapes.dome(diameter_mm=60.0, height_mm=12.0, pixel_mm=0.05)
+    np.save(tmp_path / "fine.npy", fine.z.astype(np.float32))
+    (tmp_path / "fine.yaml").write_text("pixel_mm: 0.05\n")
+    coarse = shapes.dome(diameter_mm=60.0, height_mm=12.0, pixel_mm=0.25)
+    np.save(tmp_path / "coarse.npy", coarse.z.astype(np.float32))
+    (tmp_path / "coarse.yaml").write_text("pixel_mm: 0.25\n")
+    a = plan_file(tmp_path / "fine.npy", prof).report
+    b = plan_file(tmp_path / "coarse.npy", prof).report
+    assert a["heightfield"]["shape"] == list(fine.z.shape)
+    assert a["heightfield"]["pixel_mm"] == pytest.approx(0.05)
+    assert a["heightfield"]["working_pixel_mm"] == pytest.approx(0.25)
+    assert a["heightfield"]["working_shape"] == [-(-s // 5) for s in fine.z.shape]
+    assert b["heightfield"]["working_shape"] == b["heightfield"]["shape"]
+    for r in (a, b):
+        assert r["flatten"]["invalid_edge_fraction"] < 0.01
+    assert a["mesh"]["triangles"] == pytest.approx(b["mesh"]["triangles"], rel=0.05)
+    assert a["heightfield"]["max_height_mm"] == pytest.approx(12.0, abs=0.1)
