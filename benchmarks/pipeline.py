@@ -6,7 +6,7 @@ case's own. Targets (issues 3 and 5) are reported next to the measurements;
 nothing here asserts them.
 
     python benchmarks/pipeline.py                 # everything
-    python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain
+    python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain | fine_map
 
 The plan group runs each model twice: with the profile as shipped (the
 forward simulation on the full mesh) and with ``mesh.l_sim_mm: 2`` (on the
@@ -82,6 +82,7 @@ issue3 = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
 g = r["gcode"]
 print(json.dumps({
     "input": r["input"], "longest_diameter_mm": round(r["heightfield"]["longest_diameter_mm"], 1),
+    "working_shape": r["heightfield"].get("working_shape"),
     "triangles": r["mesh"]["triangles"], "timing_s": ts, "issue3_stages_s": round(issue3, 3),
     "wall_s": round(wall, 3),
     "invalid_edge_fraction": round(r["flatten"]["invalid_edge_fraction"], 4),
@@ -105,6 +106,29 @@ np.save(out + "/" + name + ".npy", hf.z.astype(np.float32))
 open(out + "/" + name + ".yaml", "w").write("pixel_mm: %r\n" % hf.pixel_mm)
 print(json.dumps({"ok": True}))
 """
+
+
+FINE_MAP = r"""
+import numpy as np
+from PIL import Image
+out, n = sys.argv[1], int(sys.argv[2])
+y, x = np.mgrid[0:n, 0:n]
+r = np.hypot(x - n / 2, y - n / 2) / (n / 2)
+z = np.where(r < 1, np.sqrt(np.clip(1 - 0.75 * r ** 2, 0, None)) - 0.5, 0.0)
+Image.fromarray((z / z.max() * 65535).astype(np.uint16)).save(out + "/fine_map.png")
+open(out + "/fine_map.yaml", "w").write("size_mm: 175\nheight_mm: 30\n")
+print(json.dumps({"ok": True}))
+"""
+
+
+def bench_fine_map(n=4000):
+    """A 16-megapixel 16-bit PNG height map (a dome on a black square, 175 mm): what a
+    high-resolution export brings; planned on validate.working_pixel_mm samples."""
+    with tempfile.TemporaryDirectory() as tmp:
+        _child(FINE_MAP, tmp, str(n))
+        res = _child(PLAN, str(Path(tmp) / "fine_map.png"), tmp + "/out")
+    res["pixels"] = n * n
+    return res
 
 
 def bench_flatten():
@@ -135,7 +159,7 @@ def bench_terrain():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["flatten", "plan", "terrain"])
+    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map"])
     args = ap.parse_args()
     t0 = time.time()
     result = {"machine": {"cpu_count": os.cpu_count(), "python": sys.version.split()[0],
@@ -146,6 +170,8 @@ def main():
         result["plan"] = bench_plan()
     if args.only in (None, "terrain"):
         result["terrain"] = bench_terrain()
+    if args.only in (None, "fine_map"):
+        result["fine_map"] = bench_fine_map()
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
 
