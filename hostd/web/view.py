@@ -45,7 +45,7 @@ SHARE_HUNG = object()   # what a share read returns when it did not answer in ti
 
 
 class _ShareReads:
-    """Reads (and uploads) of the share for the web threads, given up after ``timeout_s``.
+    """Calls on the share for the web threads (reads, uploads), given up after ``timeout_s``.
 
     A share that stops answering (an NFS server rebooting) blocks every call on it; a
     page that waited would hold a server thread per poll, and within seconds none
@@ -196,6 +196,8 @@ class NodeView:
         self._local = threading.local()
         self._files = _FileCache()
         self._share = _ShareReads()
+        # Uploads on helpers of their own: a slow one must not starve the page's reads.
+        self._uploads = _ShareReads(timeout_s=30.0)
 
     # -- store -----------------------------------------------------------------------------
 
@@ -234,7 +236,7 @@ class NodeView:
         (threading.Event) is set then, so a write that finishes later can undo itself
         instead of landing after the person was told it did not."""
         abandoned = threading.Event()
-        result = self._share.call(SHARE_HUNG, fn, abandoned, *args, timeout_s=timeout_s)
+        result = self._uploads.call(SHARE_HUNG, fn, abandoned, *args, timeout_s=timeout_s)
         if result is SHARE_HUNG:
             abandoned.set()
         return result
