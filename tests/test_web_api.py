@@ -198,7 +198,14 @@ def test_download_confined_to_outbox(node, tmp_path):
     base = "/api/jobs/%s/files/" % node.printing
     r = node.client.get(base + "dome.gcode")
     assert r.status_code == 200 and b"LAYER:1" in r.data
+    assert r.content_length == len(r.data)
     assert "attachment" in r.headers["Content-Disposition"]
+    # A resumed download asks for a range and gets exactly that part.
+    part = node.client.get(base + "dome.gcode", headers={"Range": "bytes=5-14"})
+    assert part.status_code == 206 and part.data == r.data[5:15]
+    assert part.headers["Content-Range"] == "bytes 5-14/%d" % len(r.data)
+    again = node.client.get(base + "dome.gcode", headers={"If-None-Match": r.headers["ETag"]})
+    assert again.status_code == 304
     assert "sandbox" in r.headers["Content-Security-Policy"]
     assert node.client.get(base + "dome.toolpath.png").status_code == 200
     for bad in ("../secret.txt", "..%2Fsecret.txt", "..%2F..%2Fsecret.txt", "%2Fetc%2Fpasswd",

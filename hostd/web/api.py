@@ -243,10 +243,12 @@ def job_file(job_id, name):
     f, st = opened
     inline = Path(name).suffix.lower() in (".png", ".svg", ".json")
     resp = send_file(f, as_attachment=not inline, download_name=name, max_age=10,
-                     last_modified=st.st_mtime, etag="%d-%d" % (st.st_mtime_ns, st.st_size))
-    if resp.status_code == 200:
-        resp.content_length = st.st_size
-    return resp
+                     last_modified=st.st_mtime, etag="%d-%d" % (st.st_mtime_ns, st.st_size),
+                     conditional=False)
+    resp.content_length = st.st_size
+    # send_file knows no size for a file object, so it would offer ranges it cannot serve.
+    return resp.make_conditional(request.environ, accept_ranges=True,
+                                 complete_length=st.st_size)
 
 
 # -- actions ------------------------------------------------------------------------------
