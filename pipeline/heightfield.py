@@ -428,7 +428,7 @@ def coarsen(hf, pixel_mm):
 
     A 16-megapixel height map of a 175 mm part has 0.04 mm samples; every stage
     after loading scales with the sample count (on this machine such a map took
-    170 s and 6 GB, most of it filling pits), while the sheet cannot form
+    167 s and 6.1 GB, most of it in validation), while the sheet cannot form
     anything near that small (paths ~0.5 mm wide, ``smooth_mm`` ~1 mm). So the
     field is averaged over k x k blocks, k = floor(pixel_mm / hf.pixel_mm): a
     block is inside the footprint when at least half its samples are (the
