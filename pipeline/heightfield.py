@@ -424,7 +424,7 @@ def _mesh_vertex_colors(mesh):
 
 
 def coarsen(hf, pixel_mm):
-    """``hf`` averaged down to samples no finer than ``pixel_mm`` (block means).
+    """``hf`` averaged over whole k x k blocks, k the largest with k * hf.pixel_mm <= pixel_mm.
 
     A 16-megapixel height map of a 175 mm part has 0.04 mm samples; every stage
     after loading scales with the sample count (on this machine such a map took
