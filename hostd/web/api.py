@@ -173,8 +173,8 @@ def save_upload(upload, sidecar=None, target=None):
             return 400, dict(ok=False, error="no printer or profile %s on this node" % target)
         folder = folder / target
     from hostd.web.view import SHARE_HUNG
-    wait_s = current_app.config.get("HOSTD_SHARE_WRITE_S", 30.0)
-    saved = v.share_write(_store_upload, folder, name, upload, sidecar, timeout_s=wait_s)
+    saved = v.share_write(_store_upload, folder, name, upload, sidecar,
+                          timeout_s=current_app.config.get("HOSTD_SHARE_WRITE_S"))
     if saved is SHARE_HUNG:
         return 503, dict(ok=False, error="the drop folder (%s) does not answer (a network share "
                                          "away?): the upload was not taken; try again once it "

@@ -42,6 +42,7 @@ def _downsample(samples, n=HISTORY_POINTS):
 
 
 SHARE_HUNG = object()   # what a share read returns when it did not answer in time
+UPLOAD_WAIT_S = 30.0    # an upload to a slow share takes a while; one that hangs, no longer
 
 
 class _ShareReads:
@@ -197,7 +198,7 @@ class NodeView:
         self._files = _FileCache()
         self._share = _ShareReads()
         # Uploads on helpers of their own: a slow one must not starve the page's reads.
-        self._uploads = _ShareReads(timeout_s=30.0)
+        self._uploads = _ShareReads(timeout_s=UPLOAD_WAIT_S)
 
     # -- store -----------------------------------------------------------------------------
 
@@ -229,10 +230,10 @@ class NodeView:
         f, st = opened
         return ShareFile(self._share, f), st
 
-    def share_write(self, fn, *args, timeout_s=30.0):
+    def share_write(self, fn, *args, timeout_s=None):
         """``fn(abandoned, *args)`` on the share helper: its result, or :data:`SHARE_HUNG`
-        when it has not returned within ``timeout_s`` (an upload to a slow share takes a
-        while; one that stops answering must not hold the server thread). ``abandoned``
+        when it has not returned within ``timeout_s`` (default :data:`UPLOAD_WAIT_S`: one
+        that stops answering must not hold the server thread). ``abandoned``
         (threading.Event) is set then, so a write that finishes later can undo itself
         instead of landing after the person was told it did not."""
         abandoned = threading.Event()
