@@ -19,6 +19,7 @@ energy, which is what "sum_i w_i A_i^T A_i" in the issue means. With edges
 thick (bending/stretching stiffness ~ t^2 / 12), close to the printed sheets.
 """
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,6 +124,7 @@ class PDSystem:
         q = 2.0 * self.w_shear * self.he_scale ** 2
         np.add.at(q, self.edge_he, self.edge_w * self.edge_scale ** 2)
         M = (self.DT @ sp.diags(q) @ self.D + self.w_bending * (self.B.T @ self.B)).tocsc()
+        self.M = M.tocsr()
         self.eps = closeness * float(M.diagonal().mean())
         M = M + self.eps * sp.identity(n, format="csc")
         self.lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
@@ -237,6 +239,19 @@ class PDSystem:
         # (d, n) C-order is (n, d) Fortran order, which SuperLU takes without a copy.
         return np.ascontiguousarray(self.lu.solve(rhs.T).T)
 
+    def gradient(self, Q, Xc):
+        """Gradient of the energy at ``Xc`` ((d, n)) from its projections ``Q``: (d, n).
+
+        The energy is quadratic in x for fixed projections, and a projection's
+        distance has the gradient of that quadratic: ``M x - (D^T Q[0] + Ae^T Q[1])``.
+        """
+        Qs, Pe = Q
+        return np.stack([self.M @ x - self.DT @ q - self.AeT @ p for x, q, p in zip(Xc, Qs, Pe)])
+
+    def precondition(self, G):
+        """The global step's matrix (plus closeness) solved for ``G`` ((d, n)): (d, n)."""
+        return np.ascontiguousarray(self.lu.solve(np.ascontiguousarray(G).T).T)
+
     def step(self, Xc, planar=False):
         """One local/global iteration on ``Xc`` ((d, n)); returns (new Xc, energy before)."""
         Q, E = self.project(Xc, planar)
@@ -311,3 +326,100 @@ def minimize(system, X, iterations, tol, planar=False, anderson=5, callback=None
             converged = True
             break
     return X, energies, it, converged
+
+
+def minimize_lbfgs(system, X, iterations, rest_tol, window=10, memory=5, callback=None):
+    """Minimise the constraint energy by L-BFGS preconditioned with the PD matrix.
+
+    A PD step is a gradient step preconditioned by the global matrix; L-BFGS
+    (Liu, Bouaziz and Kavan 2017, "Quasi-Newton methods for real-time
+    simulation of hyperelastic materials") starts from that same matrix and
+    learns the curvature the local steps miss from the last ``memory`` steps,
+    with an Armijo backtracking line search so the energy never rises. On a
+    sheet's soft modes (lobes that bend without stretching, a skirt that
+    curls) PD and Anderson-accelerated PD creep by steps far below any
+    per-step tolerance for hundreds of iterations; this moves along them.
+
+    Parameters
+    ----------
+    system : PDSystem
+    X : (d, n) float, mm
+    iterations : int
+    rest_tol : float, mm
+        At rest when the sheet moved less than this (root mean square over
+        its vertices) in the last ``window`` iterations, or when no step
+        along the search direction lowers the energy.
+    memory : int
+        Curvature pairs kept.
+    callback : callable(iteration, (n, d) positions), optional
+
+    Returns
+    -------
+    X : (d, n), energies : list of float (energy at the start of each
+    iteration), iterations run, converged : bool
+    """
+    Q, E = system.project(X)
+    g = system.gradient(Q, X)
+    S, Y = deque(maxlen=memory), deque(maxlen=memory)
+    past = deque(maxlen=window)
+    energies = []
+    converged = False
+    it = 0
+    for it in range(1, iterations + 1):
+        energies.append(E)
+        past.append(X)
+        d = -_two_loop(g, S, Y, system.precondition)
+        slope = float(np.vdot(g, d))
+        if not slope < 0:
+            S.clear()
+            Y.clear()
+            d = -system.precondition(g)
+            slope = float(np.vdot(g, d))
+        step = 1.0
+        for _ in range(_BACKTRACKS):
+            Xn = X + step * d
+            Qn, En = system.project(Xn)
+            if En <= E + 1e-4 * step * slope:
+                break
+            step *= 0.5
+        else:
+            converged = True    # no step lowers the energy: a minimum, to round-off
+            break
+        gn = system.gradient(Qn, Xn)
+        s, y = (Xn - X).ravel(), (gn - g).ravel()
+        if np.dot(s, y) > 1e-12 * np.dot(y, y):
+            S.append(s)
+            Y.append(y)
+        X, Q, E, g = Xn, Qn, En, gn
+        if callback is not None:
+            callback(it, X.T)
+        if _at_rest(past, X, rest_tol):
+            converged = True
+            break
+    return X, energies, it, converged
+
+
+_BACKTRACKS = 20
+
+
+def _two_loop(g, S, Y, precondition):
+    """L-BFGS direction: the inverse-Hessian estimate applied to ``g`` ((d, n))."""
+    q = g.ravel().copy()
+    alpha = []
+    for s, y in zip(reversed(S), reversed(Y)):
+        a = np.dot(s, q) / np.dot(y, s)
+        alpha.append(a)
+        q -= a * y
+    r = precondition(q.reshape(g.shape)).ravel()
+    for (s, y), a in zip(zip(S, Y), reversed(alpha)):
+        b = np.dot(y, r) / np.dot(y, s)
+        r += (a - b) * s
+    return r.reshape(g.shape)
+
+
+def _at_rest(past, X, rest_tol):
+    """``X`` ((d, n)) lies within ``rest_tol`` (RMS, mm) of the oldest of a full ``past``."""
+    if len(past) < past.maxlen:
+        return False
+    d = X - past[0]
+    return float(np.sqrt(np.einsum("ij,ij->", d, d) / X.shape[1])) < rest_tol

