@@ -6,9 +6,9 @@ length. Corner rest angles and hinge cotangents come from those lengths
 (law of cosines), so the constraints agree with each other; bending pulls
 toward flat as in :mod:`pipeline.flatten`. No relocations. The sheet starts
 flat with an upward bump (the bath pushes it one way; see ``pop`` for why
-its height matters) and projective dynamics
-(Anderson-accelerated) runs to equilibrium with the same once-factored
-solver; the result is rigidly aligned to the target (Kabsch, identity
+its height matters) and settles to rest under L-BFGS on the constraint
+energy, preconditioned with the once-factored PD matrix
+(:func:`pipeline.pd.minimize_lbfgs`); the result is rigidly aligned to the target (Kabsch, identity
 correspondence).
 
 Where the mesh carries a coarser sheet (``Mesh.sheet``: the same cells with
