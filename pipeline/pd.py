@@ -233,11 +233,9 @@ class PDSystem:
 
         Q : pair from :meth:`project`; Xc : (d, n). Returns (d, n).
         """
-        Qs, Pe = Q
-        rhs = np.stack([self.DT @ q + self.AeT @ p for q, p in zip(Qs, Pe)])
+        rhs = self._pull(Q)
         rhs += self.eps * Xc
-        # (d, n) C-order is (n, d) Fortran order, which SuperLU takes without a copy.
-        return np.ascontiguousarray(self.lu.solve(rhs.T).T)
+        return self.precondition(rhs)
 
     def gradient(self, Q, Xc):
         """Gradient of the energy at ``Xc`` ((d, n)) from its projections ``Q``: (d, n).
@@ -245,11 +243,18 @@ class PDSystem:
         The energy is quadratic in x for fixed projections, and a projection's
         distance has the gradient of that quadratic: ``M x - (D^T Q[0] + Ae^T Q[1])``.
         """
+        G = np.stack([self.M @ x for x in Xc])
+        G -= self._pull(Q)
+        return G
+
+    def _pull(self, Q):
+        """The projections ``Q`` pulled back onto the vertices: ``D^T Q[0] + Ae^T Q[1]`` ((d, n))."""
         Qs, Pe = Q
-        return np.stack([self.M @ x - self.DT @ q - self.AeT @ p for x, q, p in zip(Xc, Qs, Pe)])
+        return np.stack([self.DT @ q + self.AeT @ p for q, p in zip(Qs, Pe)])
 
     def precondition(self, G):
         """The global step's matrix (plus closeness) solved for ``G`` ((d, n)): (d, n)."""
+        # (d, n) C-order is (n, d) Fortran order, which SuperLU takes without a copy.
         return np.ascontiguousarray(self.lu.solve(np.ascontiguousarray(G).T).T)
 
     def step(self, Xc, planar=False):
@@ -390,7 +395,7 @@ def minimize_lbfgs(system, X, iterations, rest_tol, window=10, memory=5, callbac
         if np.dot(s, y) > 1e-12 * np.dot(y, y):
             S.append(s)
             Y.append(y)
-        X, Q, E, g = Xn, Qn, En, gn
+        X, E, g = Xn, En, gn
         if callback is not None:
             callback(it, X.T)
         if _at_rest(past, X, rest_tol):
