@@ -16,6 +16,7 @@ mesh from its shape.
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -79,11 +80,13 @@ wall = time.perf_counter() - t
 r = plan.report
 ts = r["timing_s"]
 issue3 = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
+every = ts["total"] + ts.get("gcode", 0.0) + ts.get("texture", 0.0)
 g = r["gcode"]
 print(json.dumps({
     "input": r["input"], "longest_diameter_mm": round(r["heightfield"]["longest_diameter_mm"], 1),
     "working_shape": r["heightfield"].get("working_shape"),
     "triangles": r["mesh"]["triangles"], "timing_s": ts, "issue3_stages_s": round(issue3, 3),
+    "all_stages_s": round(every, 3),
     "wall_s": round(wall, 3),
     "invalid_edge_fraction": round(r["flatten"]["invalid_edge_fraction"], 4),
     "mean_displacement_mm": round(r["simulation"]["mean_displacement_mm"], 3),
@@ -138,12 +141,22 @@ def bench_flatten():
 
 
 def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_peak",
-                      "terrain_tile")):
+                      "terrain_tile"), repeats=3):
+    """Each model once; the dome, the 175 mm model the time targets name, ``repeats``
+    times, because one run on this shared machine can be 20-30 % off: every run's
+    times are reported with their median (the quality figures are deterministic)."""
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             _child(SHAPE, name, tmp)
-            out[name] = _child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out")
+            runs = [_child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out")
+                    for _ in range(repeats if name == "dome" else 1)]
+            out[name] = runs[0]
+            if len(runs) > 1 and all("error" not in r for r in runs):
+                out[name]["repeats"] = {
+                    key: {"runs": [r[key] for r in runs],
+                          "median": round(statistics.median(r[key] for r in runs), 3)}
+                    for key in ("issue3_stages_s", "all_stages_s", "wall_s")}
     return out
 
 
