@@ -114,3 +114,11 @@ def test_collinear_segments_merge_unless_shrink_differs():
     bent[20:, 1] = (bent[20:, 0] - 5.0) * 0.2   # an 11 degree bend at x = 5
     p, _ = merge_collinear(bent, np.full(40, 0.1), 2.0, 0.005)
     assert len(p) == 3
+
+
+def test_merged_shrink_is_the_length_weighted_mean():
+    # 1 mm at 0.100 then 3 mm at 0.104 (within the 0.005 tolerance), then a run apart.
+    pts = np.array([[0.0, 0.0], [1.0, 0.0], [4.0, 0.0], [6.0, 0.0]])
+    p, s = merge_collinear(pts, np.array([0.100, 0.104, 0.2]), 2.0, 0.005)
+    assert np.array_equal(p, pts[[0, 2, 3]])
+    assert s == pytest.approx([0.103, 0.2], abs=1e-12)
