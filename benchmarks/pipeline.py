@@ -65,15 +65,10 @@ print(json.dumps({"triangles": len(mesh.faces), "l_u_mm": round(lu, 3), "iterati
 """
 
 PLAN = r"""
-import dataclasses, io, shutil
-from pathlib import Path
-import numpy as np
 from pipeline.profile import load_profile
 from hostd import planner
 path, outdir = sys.argv[1], sys.argv[2]
 prof = load_profile("generic-0.5mm")
-if len(sys.argv) > 3:
-    prof = dataclasses.replace(prof, mesh=dataclasses.replace(prof.mesh, l_sim_mm=float(sys.argv[3])))
 t = time.perf_counter()
 plan = planner.run(path, prof, outdir)
 wall = time.perf_counter() - t

@@ -153,14 +153,14 @@ def simulate(mesh, flat, iterations=300, weights=None, s_min=None, s_max=None,
     timing = {}
     if sheet is not None:
         t = time.perf_counter()
-        P, it, converged, energy, n_sim = _settle(mesh, xy, target, l_print, w, sheet, pop=pop,
-                                                  **settle)
+        P, it, converged, energy, n_sim = _settle(mesh, xy, pe, target, l_print, w, sheet,
+                                                  pop=pop, **settle)
         timing["coarse"] = time.perf_counter() - t
     coarse_it = it
     if sheet is None or refine:
         t = time.perf_counter()
-        P, it_f, converged, e_f, n_sim = _settle(mesh, xy, target, l_print, w, None, pop=pop,
-                                                 start=P, **settle)
+        P, it_f, converged, e_f, n_sim = _settle(mesh, xy, pe, target, l_print, w, None,
+                                                 pop=pop, start=P, **settle)
         it, energy = it + it_f, energy + e_f
         timing["full"] = time.perf_counter() - t
 
@@ -180,16 +180,15 @@ def simulate(mesh, flat, iterations=300, weights=None, s_min=None, s_max=None,
                      energy_history=energy, timing_s=timing)
 
 
-def _settle(mesh, xy, target, l_print, w, sheet, pop, start=None, **settle):
+def _settle(mesh, xy, pe, target, l_print, w, sheet, pop, start=None, **settle):
     """Settle the shrunk sheet: the full mesh (``sheet`` None) or a coarse sheet.
 
-    ``target`` and ``l_print`` ((p,) mm) are the printing edges' shrunk and
-    flat lengths. The sheet starts flat with the ``pop`` bump, or at ``start``
+    ``pe`` ((p, 2) int) are the mesh's printing edges, ``target`` and ``l_print``
+    ((p,) mm) their shrunk and flat lengths. The sheet starts flat with the ``pop`` bump, or at ``start``
     ((n, 3) mm, every mesh vertex). Returns (positions (n, 3) of every mesh
     vertex, iterations, converged, energies, vertices simulated).
     """
     V = mesh.vertices
-    pe = np.asarray(mesh.printing_edges, dtype=np.int64).reshape(-1, 2)
     if sheet is None:
         kept, faces = np.arange(len(V)), mesh.faces
     else:

@@ -212,8 +212,9 @@ def merge_collinear(points, sigma, angle_deg, sigma_tol):
     seg_len = np.hypot(d[:, 0], d[:, 1])
     # Where a run ends depends on where it started, so the scan is sequential; on
     # Python floats it is ~10x faster than on numpy scalars (a dome has ~150k segments).
+    sigma = np.asarray(sigma, dtype=float)
     ang = np.arctan2(d[:, 1], d[:, 0]).tolist()
-    sg = np.asarray(sigma, dtype=float).tolist()
+    sg = sigma.tolist()
     cos_tol = math.cos(math.radians(angle_deg))
     keep = [0]
     i = 0
