@@ -23,8 +23,6 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
     level, u : (n,) float, isoline value and path index per vertex
     poly : shapely polygon, the flat outline; pw : float, path width mm
     """
-    import shapely
-
     seg_count = sum(len(s) for s in tsig)
     length = 0.0
     sharp = 0
@@ -50,31 +48,75 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
     other = (label[i] != label[probe][:, None]) & np.isfinite(d)
     has = other.any(axis=1)
     spacing = d[has, np.argmax(other[has], axis=1)]
-    # Coverage and overlap on a grid over the flat footprint (``poly``, its outline).
-    res = pw / 2.5
-    x0, y0 = xy.min(axis=0)
-    x1, y1 = xy.max(axis=0)
-    X, Y = np.meshgrid(np.arange(x0, x1, res) + res / 2, np.arange(y0, y1, res) + res / 2)
-    inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
-    grid = np.column_stack([X.ravel()[inside], Y.ravel()[inside]])
-    # Only neighbours within half a path width decide coverage and overlap, and
-    # the tighter bound prunes most of the tree walk (nextafter: a point exactly
-    # half a width away still counts, as the tests below use <=).
-    d, i = tree.query(grid, k=6, distance_upper_bound=np.nextafter(pw / 2, np.inf))
-    covered = d[:, 0] <= pw / 2
-    first = label[np.minimum(i[:, 0], len(label) - 1)]
-    lab = label[np.minimum(i, len(label) - 1)]
-    twice = ((lab != first[:, None]) & (d < 0.999 * pw / 2)).any(axis=1) & covered
+    covered, twice = coverage_grid(samples, label, xy, poly, pw)
     pct = np.percentile(spacing, [5, 50, 95]) if len(spacing) else [np.nan] * 3
     return {"traces": len(traces), "segments": int(seg_count), "length_mm": length,
             "travel_moves": max(len(traces) - 1, 0), "sharp_turns": sharp,
             "spacing_mm": {"target": pw, "p05": float(pct[0]), "p50": float(pct[1]),
                            "p95": float(pct[2])},
-            "coverage": float(covered.mean()) if len(grid) else 0.0,
-            "overlap": float(twice.mean()) if len(grid) else 0.0,
+            "coverage": float(covered.mean()) if len(covered) else 0.0,
+            "overlap": float(twice.mean()) if len(covered) else 0.0,
             "loops_and_arcs": len(raw),
             "isoline_angle_deg": dict(zip(("p50", "p95"), _weighted_percentiles(
                 *isoline_angles(xy, faces, level, u), [50, 95])))}
+
+
+def coverage_grid(samples, label, xy, poly, pw):
+    """Which points of a grid over the flat footprint the paths cover.
+
+    The grid has a node every ``pw / 2.5`` mm over the bounding box of ``xy``
+    ((n, 2) mm), kept where it lies inside ``poly`` (the flat outline). A node
+    is covered when a path sample (``samples`` (q, 2) mm, on path ``label``
+    (q,) int) lies within half a path width of it, and covered twice when
+    samples of two different paths lie within 0.999 of that.
+
+    Returns
+    -------
+    covered, twice : (g,) bool, one per grid node inside the outline
+    """
+    import shapely
+
+    res = pw / 2.5
+    r = pw / 2
+    x0, y0 = xy.min(axis=0)
+    x1, y1 = xy.max(axis=0)
+    gx = np.arange(x0, x1, res) + res / 2
+    gy = np.arange(y0, y1, res) + res / 2
+    X, Y = np.meshgrid(gx, gy)
+    inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
+    nx, ny = len(gx), len(gy)
+    covered = np.zeros(nx * ny, dtype=bool)
+    twice = np.zeros(nx * ny, dtype=bool)
+    if len(samples) == 0 or nx == 0 or ny == 0:
+        return covered[inside], twice[inside]
+    # Each sample stamps the nodes within r of it: those lie in a box of
+    # ``span`` nodes a side starting at the first node no further than r left
+    # of (below) it. Stamping visits each (sample, node) pair once, where a
+    # nearest-neighbour query per node walks a tree for every node.
+    span = int(np.floor(2 * r / res)) + 1
+    lo_x = np.ceil((samples[:, 0] - r - gx[0]) / res).astype(np.int64)
+    lo_y = np.ceil((samples[:, 1] - r - gy[0]) / res).astype(np.int64)
+    cells, labels = [], []
+    for ox in range(span):
+        ix = lo_x + ox
+        dx = gx[np.clip(ix, 0, nx - 1)] - samples[:, 0]
+        for oy in range(span):
+            iy = lo_y + oy
+            dy = gy[np.clip(iy, 0, ny - 1)] - samples[:, 1]
+            d2 = dx * dx + dy * dy
+            hit = (d2 <= r * r) & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+            cell = iy[hit] * nx + ix[hit]
+            covered[cell] = True
+            strict = d2[hit] < (0.999 * r) ** 2
+            cells.append(cell[strict])
+            labels.append(label[hit][strict])
+    cells = np.concatenate(cells)
+    labels = np.concatenate(labels)
+    # Any one path's label per node; a node also reached by another path is covered twice.
+    owner = np.full(nx * ny, -1, dtype=np.int64)
+    owner[cells] = labels
+    twice[cells[labels != owner[cells]]] = True
+    return covered[inside], twice[inside]
 
 
 def isoline_angles(xy, faces, level, u):

@@ -5,7 +5,7 @@ import pytest
 import shapely
 
 from conftest import reference_toolpaths
-from pipeline.pathstats import isoline_angles
+from pipeline.pathstats import coverage_grid, isoline_angles
 from pipeline.toolpath import boundary_loop, merge_collinear, path_field, plan_toolpaths
 
 PW = 0.48
@@ -19,6 +19,35 @@ def test_paths_are_equally_spaced_and_cover_the_sheet(name):
     assert 0.8 * PW <= s["p05"] and s["p95"] <= 1.2 * PW, s
     assert tp.info["coverage"] > 0.95
     assert tp.info["overlap"] < 0.05
+
+
+def test_overlap_counts_nodes_two_paths_reach_however_densely_one_is_sampled():
+    """Path A (y = 0) has a vertex every 0.01 mm, as chained isoline pieces can;
+    path B (y = 0.3) one every 0.125 mm. A node between them is covered twice
+    although dozens of A's samples are nearer than any of B's (a query for a
+    node's few nearest samples sees only A there)."""
+    pw = 0.5
+    xa = np.arange(0.0, 10.0 + 1e-9, 0.01)
+    xb = np.arange(0.0, 10.0 + 1e-9, 0.125)
+    samples = np.vstack([np.column_stack([xa, np.zeros_like(xa)]),
+                         np.column_stack([xb, np.full_like(xb, 0.3)])])
+    label = np.repeat([0, 1], [len(xa), len(xb)])
+    box = shapely.box(-0.5, -0.5, 10.5, 0.8)
+    corners = np.array([[-0.5, -0.5], [10.5, 0.8]])
+    covered, twice = coverage_grid(samples, label, corners, box, pw)
+    # The grid as documented, and each node's distance to either path's samples.
+    res = pw / 2.5
+    gx = np.arange(-0.5, 10.5, res) + res / 2
+    gy = np.arange(-0.5, 0.8, res) + res / 2
+    X, Y = np.meshgrid(gx, gy)
+    nodes = np.column_stack([X.ravel(), Y.ravel()])
+    nodes = nodes[shapely.contains_xy(box, nodes[:, 0], nodes[:, 1])]
+    da = np.min(np.hypot(*(nodes[:, None, :] - samples[None, label == 0]).transpose(2, 0, 1)), axis=1)
+    db = np.min(np.hypot(*(nodes[:, None, :] - samples[None, label == 1]).transpose(2, 0, 1)), axis=1)
+    assert len(covered) == len(nodes)
+    np.testing.assert_array_equal(covered, np.minimum(da, db) <= pw / 2)
+    np.testing.assert_array_equal(twice, (da < 0.999 * pw / 2) & (db < 0.999 * pw / 2))
+    assert twice.sum() == 51  # the row y = 0.1 from x = 0 to 10 mm
 
 
 def test_dome_is_one_continuous_trace_without_sharp_turns():
