@@ -217,8 +217,13 @@ def boundary_loops(faces):
     n = int(faces.max(initial=0)) + 1
     key = he[:, 0] * n + he[:, 1]
     twin = he[:, 1] * n + he[:, 0]
-    # A half-edge is on the boundary when no face runs its reverse.
-    border = he[~np.isin(key, twin)]
+    if len(key) == 0:
+        return []
+    # A half-edge is on the boundary when no face runs its reverse (a binary
+    # search in the sorted keys: several times faster than np.isin here).
+    sorted_key = np.sort(key)
+    pos = np.minimum(np.searchsorted(sorted_key, twin), len(key) - 1)
+    border = he[sorted_key[pos] != twin]
     if len(border) == 0:
         return []
     order = np.argsort(border[:, 0], kind="stable")

@@ -158,19 +158,21 @@ def chain_segments(pts, keys):
     nxt = np.where(found, order[np.maximum(pos, 0)], -1).astype(np.int64)
     has_prev = np.zeros(s, bool)
     has_prev[nxt[nxt >= 0]] = True
-    seen = np.zeros(s, bool)
+    # The walk is a Python loop over every segment: on lists, not numpy scalars.
+    nxt = nxt.tolist()
+    seen = bytearray(s)
     chains = []
     # Open chains first (they start where a level set meets the boundary), then loops.
-    for start in np.concatenate([np.nonzero(~has_prev)[0], np.arange(s)]):
+    for start in np.nonzero(~has_prev)[0].tolist() + list(range(s)):
         if seen[start]:
             continue
         order = []
         i = start
         while i >= 0 and not seen[i]:
-            seen[i] = True
+            seen[i] = 1
             order.append(i)
             i = nxt[i]
-        chains.append((np.asarray(order), bool(i == start)))
+        chains.append((np.asarray(order, dtype=np.int64), i == start))
     return chains
 
 
