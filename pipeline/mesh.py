@@ -22,11 +22,12 @@ import numpy as np
 import shapely
 
 from pipeline.errors import MeshingError
-from pipeline.geometry import Mesh, SimSheet, polygon_area, signed_areas_2d, unique_edges
+from pipeline.geometry import Mesh, SimSheet, signed_areas_2d, unique_edges
 from pipeline.gradient import Snapper, trace
 from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces, points_at
-from pipeline.triangulate import (drop_degenerate, ear_clip, fan, main_runs, run_level, sim_sheet,
-                                  split_ring, trace_faces, zip_strips)
+from pipeline.triangulate import (cell_rings, drop_degenerate, ear_clip, fan, main_runs, run_keys,
+                                  run_level, sim_sheet, split_arcs, split_ring, trace_faces,
+                                  zip_strips)
 
 
 def build_mesh(hf, isoline_step_mm=1.0, gradient_spacing_mm=2.0, l_u_mm=0.25,
@@ -89,6 +90,8 @@ class _Graph:
              for p in self.pieces])
         self.node_xy = []
         self.piece_t = [[] for _ in self.pieces]   # per piece: arc-length t of its nodes
+        # ... and the same in an array (grown by doubling): add_node searches it often.
+        self._t_buf = [np.empty(16) for _ in self.pieces]
         self.piece_n = [[] for _ in self.pieces]   # per piece: node ids
         self.bridges = []
         self.connectors = 0
@@ -107,15 +110,18 @@ class _Graph:
         merge_mm = 0.5 * self.l_u if merge_mm is None else merge_mm
         ts = self.piece_t[pid]
         if ts and node is None:
-            d = np.abs(np.asarray(ts) - t)
+            d = np.abs(self._t_buf[pid][:len(ts)] - t)
             if pc.closed:
-                d = np.minimum(d, pc.length - d)
-            k = int(np.argmin(d))
+                np.minimum(d, pc.length - d, out=d)
+            k = int(d.argmin())
             if d[k] < merge_mm:
                 return self.piece_n[pid][k]
         if node is None:
             node = len(self.node_xy)
             self.node_xy.append(pc.at([t])[0] if xy is None else np.asarray(xy, float))
+        if len(ts) == len(self._t_buf[pid]):
+            self._t_buf[pid] = np.concatenate([self._t_buf[pid], np.empty(len(ts))])
+        self._t_buf[pid][len(ts)] = t
         ts.append(float(t))
         self.piece_n[pid].append(node)
         return node
@@ -197,16 +203,24 @@ class _Graph:
         src, t_src, pid1, t1, xy0 = src[keep], t_src[keep], pid1[keep], t1[keep], xy0[keep]
         xy1 = points_at(self.pieces, pid1, t1)
         keep = self._planar(xy0, xy1, band)
-        for a, ta, b, tb in zip(src[keep], t_src[keep], pid1[keep], t1[keep]):
-            na = self.add_node(int(a), float(ta))
-            nb = self.add_node(int(b), float(tb))
+        pairs = []
+        # The end points are known already: a new node needs no second look-up on its piece.
+        for a, ta, b, tb, p, q in zip(src[keep], t_src[keep], pid1[keep], t1[keep],
+                                      xy0[keep], xy1[keep]):
+            na = self.add_node(int(a), float(ta), xy=p)
+            nb = self.add_node(int(b), float(tb), xy=q)
             if na != nb:
-                self._add_bridge(na, nb, band)
+                pairs.append((na, nb))
+        self._add_bridges(pairs, band)
 
-    def _add_bridge(self, na, nb, band):
-        self.bridges.append((na, nb))
-        self._bridge_lines.setdefault(band, []).append(
-            _shrunk(np.asarray(self.node_xy[na]), np.asarray(self.node_xy[nb])))
+    def _add_bridges(self, pairs, band):
+        """Join node pairs ((na, nb), ...) by bridges of ``band``."""
+        if not pairs:
+            return
+        self.bridges.extend(pairs)
+        a = np.array([self.node_xy[na] for na, _ in pairs], float)
+        b = np.array([self.node_xy[nb] for _, nb in pairs], float)
+        self._bridge_lines.setdefault(band, []).extend(_shrunk_many(a, b))
 
     def _planar(self, xy0, xy1, band):
         """Keep the straight bridges that cross no isoline, no earlier bridge and no
@@ -279,15 +293,17 @@ class _Graph:
             pb, tb, _ = self._outline_snap.snap(pc.points[:1])
         na = self.add_node(pid, 0.0)
         nb = self.add_node(int(pb[0]), float(tb[0]))
-        self._add_bridge(na, nb, band)
+        self._add_bridges([(na, nb)], band)
         self.connectors += 1
 
     # -- triangulation -----------------------------------------------------
     def triangulate(self):
-        verts = list(self.node_xy)
-        level = [np.nan] * len(verts)
+        n_verts = len(self.node_xy)
+        verts = [np.asarray(self.node_xy, float).reshape(-1, 2)]   # blocks, in vertex id order
+        node_level = np.full(n_verts, np.nan)
+        level_blocks = []  # per piece, the level of its inserted vertices
         he = []            # (from node, to node, piece, vertex list) per half-edge
-        printing = []      # (a, b, isoline id)
+        printing = []      # (k, 3) blocks of (a, b, isoline id)
         self.arcs = []     # (vertex chain from node to node, length mm) along pieces
         iso_id = {}
         for pid, pc in enumerate(self.pieces):
@@ -299,29 +315,31 @@ class _Graph:
             order = np.argsort(self.piece_t[pid])
             ts = np.asarray(self.piece_t[pid])[order]
             ns = np.asarray(self.piece_n[pid])[order]
-            m = len(ts)
-            arcs = range(m) if pc.closed else range(m - 1)
-            for k in arcs:
-                ta, tb = ts[k], (ts[k + 1] if k + 1 < m else ts[0] + pc.length)
-                na, nb = int(ns[k]), int(ns[(k + 1) % m])
-                nsub = max(int(np.ceil((tb - ta) / self.l_u - 1e-9)), 1)
-                inner = pc.at(ta + (tb - ta) * np.arange(1, nsub) / nsub)
-                ids = list(range(len(verts), len(verts) + len(inner)))
-                verts.extend(inner)
-                level.extend([pc.level] * len(inner))
-                chain = [na] + ids + [nb]
-                self.arcs.append((np.asarray(chain), tb - ta))
-                if is_print:
-                    level[na] = level[nb] = pc.level
-                    printing.extend((a, b, iso_id[pid]) for a, b in zip(chain[:-1], chain[1:]))
-                he.append((na, nb, pid, chain[:-1]))
-                he.append((nb, na, pid, chain[::-1][:-1]))
+            t_in, seq, pos, lengths = split_arcs(ts, ns, pc.length if pc.closed else None,
+                                                 self.l_u, n_verts)
+            if not len(lengths):
+                continue
+            n_verts += len(t_in)
+            verts.append(pc.at(t_in))
+            level_blocks.append(np.full(len(t_in), pc.level))
+            if is_print:
+                node_level[ns] = pc.level
+                printing.append(np.column_stack([seq[:-1], seq[1:],
+                                                 np.full(len(seq) - 1, iso_id[pid])]))
+            sl, pl = seq.tolist(), pos.tolist()
+            for k in range(len(lengths)):
+                chain = sl[pl[k]:pl[k + 1] + 1]
+                self.arcs.append((seq[pl[k]:pl[k + 1] + 1], lengths[k]))
+                he.append((chain[0], chain[-1], pid, chain[:-1]))
+                he.append((chain[-1], chain[0], pid, chain[:0:-1]))
         for a, b in self.bridges:
             he.append((a, b, -1, [a]))
             he.append((b, a, -1, [b]))
-        xy = np.asarray(verts, float)
+        xy = np.concatenate(verts)
         faces_he = trace_faces(xy, he)
-        return self._assemble(xy, np.asarray(level, float), he, faces_he, printing, iso_id)
+        printing = np.concatenate(printing) if printing else np.zeros((0, 3), np.int64)
+        return self._assemble(xy, np.concatenate([node_level] + level_blocks), he, faces_he,
+                              printing, iso_id)
 
     def _assemble(self, xy, level, he, faces_he, printing, iso_id):
         field = self.field
@@ -331,21 +349,22 @@ class _Graph:
         centres = []
         fans = []   # (ring, centre id) of fanned cells; ear-clipped cells have no centre
         peaks = saddles = 0
-        for cycle in faces_he:
-            ring = np.concatenate([he[h][3] for h in cycle]).astype(np.int64)
-            if polygon_area(xy[ring]) <= 0:
+        key = run_keys(he, self.pieces)
+        rings, offsets, is_cell = cell_rings(xy, he, faces_he)
+        for cycle, ring, offs, cell in zip(faces_he, rings, offsets, is_cell):
+            if not cell:
                 continue  # the outer face
-            runs = main_runs(cycle, he, self.pieces)
+            runs = main_runs([key[h] for h in cycle])
             if len(runs) == 2 and run_level(runs[0], cycle, he, self.pieces) != \
                     run_level(runs[1], cycle, he, self.pieces):
                 lo, up = sorted(runs, key=lambda r: run_level(r, cycle, he, self.pieces))
-                lower, upper = split_ring(cycle, he, up)
+                lower, upper = split_ring(ring, offs, up)
                 lowers.append(lower)
                 uppers.append(upper)
                 zip_rings.append(ring)
                 continue
             if len(runs) == 1 and len(runs[0]) < len(cycle):
-                lower, upper = split_ring(cycle, he, runs[0], swap=True)
+                lower, upper = split_ring(ring, offs, runs[0], swap=True)
                 if len(upper) == 1:
                     lowers.append(lower)
                     uppers.append(upper)
@@ -393,19 +412,12 @@ class _Graph:
 
 
 def _shrunk_many(a, b, eps_mm=1e-4):
-    """Vectorised :func:`_shrunk` over (q, 2) end points: (q,) LineStrings."""
+    """The segments a-b ((q, 2) end points, mm) minus a sliver at each end, so touching
+    ends don't intersect: (q,) LineStrings."""
     d = b - a
     n = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
     e = np.minimum(eps_mm / n, 0.25)[:, None]
     return shapely.linestrings(np.stack([a + e * d, b - e * d], axis=1))
-
-
-def _shrunk(a, b, eps_mm=1e-4):
-    """The segment a-b minus a sliver at each end, so touching ends don't intersect."""
-    d = b - a
-    n = max(float(np.hypot(d[0], d[1])), 1e-12)
-    e = min(eps_mm / n, 0.25)
-    return shapely.LineString([a + e * d, b - e * d])
 
 
 def _peak(field, ring_xy):

@@ -12,7 +12,7 @@ from collections import Counter
 import mapbox_earcut
 import numpy as np
 
-from pipeline.geometry import SimSheet, signed_areas_2d
+from pipeline.geometry import SimSheet, polygon_area, signed_areas_2d
 
 
 def zip_strips(points, lowers, uppers):
@@ -119,10 +119,55 @@ def ear_clip(xy, ring):
 
 
 # -- cells of the planar graph ---------------------------------------------
-def main_runs(cycle, he, pieces):
-    """Maximal runs of half-edges along one printing isoline, in cycle order."""
-    keys = [he[h][2] if he[h][2] >= 0 and not np.isnan(pieces[he[h][2]].level) else -1
-            for h in cycle]
+def split_arcs(ts, ns, period, l_mm, first_id):
+    """Cut the arcs between a piece's consecutive nodes into edges of at most ``l_mm``.
+
+    Parameters
+    ----------
+    ts : (m,) float, sorted arc-length parameters of the nodes, mm
+    ns : (m,) int, the nodes' vertex ids
+    period : float, the length of a closed piece (its last arc runs on to ts[0] + period);
+        None for an open piece
+    l_mm : float
+    first_id : int, vertex id of the first inserted vertex (the rest follow in order)
+
+    Returns
+    -------
+    t_inner : (q,) float, parameters of the vertices inserted, arc by arc
+    seq : (a + q + 1,) int, the piece's vertex ids in order: node, inserted, node, ...
+    pos : (a + 1,) int, where each arc's first node (and last, the end node) is in ``seq``
+    lengths : (a,) float, mm
+    """
+    tb = ts[1:] if period is None else np.append(ts[1:], ts[0] + period)
+    ta = ts[:len(tb)]
+    lengths = tb - ta
+    nsub = np.maximum(np.ceil(lengths / l_mm - 1e-9).astype(np.int64), 1)
+    cum = np.concatenate([[0], np.cumsum(nsub - 1)])
+    arc = np.repeat(np.arange(len(ta)), nsub - 1)
+    j = np.arange(len(arc)) - cum[arc] + 1          # 1 .. nsub - 1 within each arc
+    # Same arithmetic, in the same order, as ta + (tb - ta) * arange(1, nsub) / nsub.
+    t_inner = ta[arc] + lengths[arc] * j / nsub[arc]
+    pos = np.arange(len(ta) + 1) + cum
+    seq = np.empty(pos[-1] + 1, dtype=np.int64)
+    seq[pos] = ns[np.arange(len(pos)) % len(ns)]
+    inserted = np.ones(len(seq), bool)
+    inserted[pos] = False
+    seq[inserted] = first_id + np.arange(len(t_inner))
+    return t_inner, seq, pos, lengths
+
+
+def run_keys(he, pieces):
+    """Per half-edge: the printing piece it runs along, or -1 (bridges, a sloped outline)."""
+    printing = [not np.isnan(p.level) for p in pieces]
+    return [h[2] if h[2] >= 0 and printing[h[2]] else -1 for h in he]
+
+
+def main_runs(keys):
+    """Maximal runs of a cell's half-edges along one printing isoline, in cycle order.
+
+    keys : per half-edge of the cell's cycle, its :func:`run_keys` entry.
+    Returns a list of runs, each a list of positions in the cycle.
+    """
     n = len(keys)
     if all(k == keys[0] for k in keys):
         return [list(range(n))] if keys[0] >= 0 else []
@@ -144,24 +189,62 @@ def run_level(run, cycle, he, pieces):
     return pieces[he[cycle[run[0]]][2]].level
 
 
-def split_ring(cycle, he, run, swap=False):
+def split_ring(ring, offs, run, swap=False):
     """Split a cell's ring into the chain of ``run`` (U) and the rest (L).
 
+    ring : (n,) int, the cell's vertices; offs : where each half-edge of its cycle
+    starts in ``ring`` (then n), as :func:`cell_rings` gives them.
     Returns ``(L, U_reversed)`` as ``zip_strips`` wants them; with ``swap``
     the run is L instead (for cells closed by a single apex vertex).
     """
-    lens = [len(he[h][3]) for h in cycle]
-    offs = np.concatenate([[0], np.cumsum(lens)])
-    ring = np.concatenate([he[h][3] for h in cycle])
     n = len(ring)
     s = offs[run[0]]
-    e = (offs[run[-1] + 1]) % n  # the run's end vertex: first vertex of the next half-edge
-    chain_u = ring[np.mod(np.arange(s, s + ((e - s) % n) + 1), n)]
-    rest = ring[np.mod(np.arange(e + 1, e + 1 + (n - ((e - s) % n) - 1)), n)]
+    e = offs[run[-1] + 1] % n  # the run's end vertex: first vertex of the next half-edge
+    k = (e - s) % n            # edges along the run
+    twice = np.concatenate([ring, ring])   # slices that wrap around need no index arrays
+    chain_u = twice[s:s + k + 1]
+    rest = twice[e + 1:e + n - k]
     if swap:
         # The run is the lower chain; the rest (one apex) is the upper.
         return chain_u, rest[::-1]
     return rest, chain_u[::-1]
+
+
+def cell_rings(xy, he, faces):
+    """The vertex rings of the graph's faces, and which of them are cells.
+
+    xy : (n, 2) float, mm; he : half-edges as :func:`trace_faces` takes them;
+    faces : its cycles. Returns ``(rings, offsets, is_cell)``: per face its ring
+    ((k,) int, the half-edges' vertex lists joined), where each half-edge starts in
+    the ring (then k), and whether the ring is counter-clockwise (else it is an
+    outer face), as ``polygon_area(xy[ring]) > 0`` says.
+    """
+    flat, starts, offsets = [], [0], []
+    for cyc in faces:
+        offs = [0]
+        for h in cyc:
+            flat.extend(he[h][3])
+            offs.append(len(flat) - starts[-1])
+        starts.append(len(flat))
+        offsets.append(offs)
+    if not flat:
+        return [], [], np.zeros(0, bool)
+    flat = np.array(flat, dtype=np.int64)
+    starts = np.array(starts)
+    rings = [flat[a:b] for a, b in zip(starts[:-1], starts[1:])]
+    # Shoelace sums of all rings at once.
+    nxt = np.arange(1, len(flat) + 1)
+    nxt[starts[1:] - 1] = starts[:-1]
+    x, y = xy[flat, 0], xy[flat, 1]
+    a, b = x * y[nxt], y * x[nxt]
+    area2 = np.add.reduceat(a - b, starts[:-1])
+    bound = np.add.reduceat(np.abs(a) + np.abs(b), starts[:-1])
+    is_cell = area2 > 0
+    # Only near zero could rounding in another summation order flip the sign:
+    # there polygon_area itself decides, as it always did.
+    for k in np.nonzero(np.abs(area2) <= 1e-9 * bound)[0]:
+        is_cell[k] = polygon_area(xy[rings[k]]) > 0
+    return rings, offsets, is_cell
 
 
 def trace_faces(xy, he):
@@ -216,10 +299,16 @@ def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
     keep = np.zeros(len(points), bool)
     keep[:n_nodes] = True
     keep[n_ring:] = True
-    pieces = [max(int(np.ceil(length / l_mm - 1e-9)), 1) for _, length in arcs]
+    # All arcs' chains back to back: arc i is flat[first[i]:first[i] + size[i]].
+    size = np.array([len(c) for c, _ in arcs], dtype=np.int64)
+    first = np.cumsum(size) - size
+    flat = np.concatenate([c for c, _ in arcs] or [np.zeros(0, np.int64)])
+    lengths = np.array([length for _, length in arcs], float)
+    pieces = np.maximum(np.ceil(lengths / l_mm - 1e-9).astype(np.int64), 1).tolist()
     # An arc cut to one edge must not join two vertices that another arc or a
     # bridge already joins: the cell between them would have two sides.
-    ends = [tuple(sorted((int(c[0]), int(c[-1])))) for c, _ in arcs]
+    ends = [tuple(e) for e in
+            np.sort(np.column_stack([flat[first], flat[first + size - 1]]), axis=1).tolist()]
     joined = Counter(e for e, k in zip(ends, pieces) if k == 1)
     joined.update(tuple(sorted(b)) for b in bridges)
     for i, e in enumerate(ends):
@@ -227,10 +316,12 @@ def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
             pieces[i] = max(pieces[i], 3)
         elif pieces[i] == 1 and joined[e] > 1:
             pieces[i] = 2
-    for (chain, _), k in zip(arcs, pieces):
-        m = len(chain) - 1
-        k = min(k, m)
-        keep[chain[np.rint(np.arange(1, k) * m / k).astype(np.int64)]] = True
+    # Keep vertices rint(j * m / k), j = 1 .. k - 1, of each arc of m edges cut to k.
+    m = size - 1
+    k = np.minimum(pieces, m)
+    arc = np.repeat(np.arange(len(arcs)), k - 1)
+    j = np.arange(len(arc)) - (np.cumsum(k - 1) - (k - 1))[arc] + 1
+    keep[flat[first[arc] + np.rint(j * m[arc] / k[arc]).astype(np.int64)]] = True
     for ring, cid in fans:
         if cid < 0:
             keep[ring] = True   # rare; the mesh's own ear clipping stands
@@ -242,19 +333,16 @@ def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
             break
         keep[np.concatenate(bad)] = True
     faces = drop_degenerate(faces)
-    dropped, between, t = [], [], []
-    for chain, _ in arcs:
-        gone = np.nonzero(~keep[chain])[0]
-        if len(gone):
-            kept = np.nonzero(keep[chain])[0]
-            i = np.searchsorted(kept, gone)
-            a, b = kept[i - 1], kept[i]
-            dropped.append(chain[gone])
-            between.append(np.stack([chain[a], chain[b]], axis=1))
-            t.append((gone - a) / (b - a))
-    if not dropped:
+    kept = keep[flat]
+    gone = np.nonzero(~kept)[0]
+    if not len(gone):
         return SimSheet(faces, np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(0))
-    return SimSheet(faces, np.concatenate(dropped), np.concatenate(between), np.concatenate(t))
+    # The kept vertices either side; every arc ends in kept nodes, so none is another arc's.
+    pos = np.arange(len(flat))
+    a = np.maximum.accumulate(np.where(kept, pos, 0))[gone]
+    b = np.minimum.accumulate(np.where(kept, pos, len(flat))[::-1])[::-1][gone]
+    return SimSheet(faces, flat[gone], np.stack([flat[a], flat[b]], axis=1),
+                    (gone - a) / (b - a))
 
 
 def _coarse_cells(points, keep, zips, fans):
