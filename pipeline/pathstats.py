@@ -41,7 +41,8 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
         label.append(np.full(len(q), c))
     samples = np.concatenate(samples)
     label = np.concatenate(label)
-    tree = cKDTree(samples)
+    # An unbalanced tree without compacted nodes: a third of the build time, same answers.
+    tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
     probe = np.arange(0, len(samples), 3)
     d, i = tree.query(samples[probe], k=14, distance_upper_bound=3 * pw)
     i = np.minimum(i, len(label) - 1)
