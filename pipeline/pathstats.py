@@ -97,20 +97,28 @@ def coverage_grid(samples, label, xy, poly, pw):
     span = int(np.floor(2 * r / res)) + 1
     lo_x = np.ceil((samples[:, 0] - r - gx[0]) / res).astype(np.int64)
     lo_y = np.ceil((samples[:, 1] - r - gy[0]) / res).astype(np.int64)
-    cells, labels = [], []
+    # Squared offsets to the candidate nodes along each axis; a node off the grid is infinitely far.
+    along_x, along_y = [], []
     for ox in range(span):
         ix = lo_x + ox
+        off = (ix < 0) | (ix >= nx)
         dx = gx[np.clip(ix, 0, nx - 1)] - samples[:, 0]
-        for oy in range(span):
-            iy = lo_y + oy
-            dy = gy[np.clip(iy, 0, ny - 1)] - samples[:, 1]
-            d2 = dx * dx + dy * dy
-            hit = (d2 <= r * r) & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-            cell = iy[hit] * nx + ix[hit]
+        along_x.append((ix, np.where(off, np.inf, dx * dx)))
+    for oy in range(span):
+        iy = lo_y + oy
+        off = (iy < 0) | (iy >= ny)
+        dy = gy[np.clip(iy, 0, ny - 1)] - samples[:, 1]
+        along_y.append((iy * nx, np.where(off, np.inf, dy * dy)))
+    cells, labels = [], []
+    for ix, dx2 in along_x:
+        for row, dy2 in along_y:
+            d2 = dx2 + dy2
+            hit = np.flatnonzero(d2 <= r * r)
+            cell = row[hit] + ix[hit]
             covered[cell] = True
             strict = d2[hit] < (0.999 * r) ** 2
             cells.append(cell[strict])
-            labels.append(label[hit][strict])
+            labels.append(label[hit[strict]])
     cells = np.concatenate(cells)
     labels = np.concatenate(labels)
     # Any one path's label per node; a node also reached by another path is covered twice.
