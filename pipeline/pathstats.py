@@ -90,6 +90,30 @@ def coverage_grid(samples, label, xy, poly, pw):
     twice = np.zeros(nx * ny, dtype=bool)
     if len(samples) == 0 or nx == 0 or ny == 0:
         return covered[inside], twice[inside]
+    cells, labels = [], []
+    # In chunks of samples: the per-offset arrays of all samples at once would be
+    # the plan's peak memory (70 MB on the 175 mm dome).
+    for lo in range(0, len(samples), _STAMP_CHUNK):
+        sl = slice(lo, lo + _STAMP_CHUNK)
+        _stamp(samples[sl], label[sl], gx, gy, res, r, covered, cells, labels)
+    cells = np.concatenate(cells)
+    labels = np.concatenate(labels)
+    # Any one path's label per node; a node also reached by another path is covered twice.
+    owner = np.full(nx * ny, -1, dtype=np.int32)
+    owner[cells] = labels
+    twice[cells[labels != owner[cells]]] = True
+    return covered[inside], twice[inside]
+
+
+_STAMP_CHUNK = 1 << 16
+
+
+def _stamp(samples, label, gx, gy, res, r, covered, cells, labels):
+    """Mark the grid nodes (axes ``gx`` (nx,), ``gy`` (ny,) mm, ``res`` apart) within ``r`` of
+    ``samples`` ((q, 2) mm) in ``covered`` ((nx * ny,) bool, row-major); append
+    the nodes within 0.999 r, and the label of the sample reaching them, to
+    ``cells`` and ``labels`` (int32 arrays)."""
+    nx, ny = len(gx), len(gy)
     # Each sample stamps the nodes within r of it: those lie in a box of
     # ``span`` nodes a side starting at the first node no further than r left
     # of (below) it. Stamping visits each (sample, node) pair once, where a
@@ -101,15 +125,12 @@ def coverage_grid(samples, label, xy, poly, pw):
     along_x, along_y = [], []
     for ox in range(span):
         ix = lo_x + ox
-        off = (ix < 0) | (ix >= nx)
         dx = gx[np.clip(ix, 0, nx - 1)] - samples[:, 0]
-        along_x.append((ix, np.where(off, np.inf, dx * dx)))
+        along_x.append((ix, np.where((ix < 0) | (ix >= nx), np.inf, dx * dx)))
     for oy in range(span):
         iy = lo_y + oy
-        off = (iy < 0) | (iy >= ny)
         dy = gy[np.clip(iy, 0, ny - 1)] - samples[:, 1]
-        along_y.append((iy * nx, np.where(off, np.inf, dy * dy)))
-    cells, labels = [], []
+        along_y.append((iy * nx, np.where((iy < 0) | (iy >= ny), np.inf, dy * dy)))
     for ix, dx2 in along_x:
         for row, dy2 in along_y:
             d2 = dx2 + dy2
@@ -117,15 +138,8 @@ def coverage_grid(samples, label, xy, poly, pw):
             cell = row[hit] + ix[hit]
             covered[cell] = True
             strict = d2[hit] < (0.999 * r) ** 2
-            cells.append(cell[strict])
-            labels.append(label[hit[strict]])
-    cells = np.concatenate(cells)
-    labels = np.concatenate(labels)
-    # Any one path's label per node; a node also reached by another path is covered twice.
-    owner = np.full(nx * ny, -1, dtype=np.int64)
-    owner[cells] = labels
-    twice[cells[labels != owner[cells]]] = True
-    return covered[inside], twice[inside]
+            cells.append(cell[strict].astype(np.int32))
+            labels.append(label[hit[strict]].astype(np.int32))
 
 
 def isoline_angles(xy, faces, level, u):
