@@ -318,7 +318,7 @@ def sim_sheet(points, n_nodes, n_ring, arcs, bridges, zips, fans, l_mm):
             pieces[i] = 2
     # Keep vertices rint(j * m / k), j = 1 .. k - 1, of each arc of m edges cut to k.
     m = size - 1
-    k = np.minimum(pieces, m)
+    k = np.minimum(np.asarray(pieces, dtype=np.int64), m)
     arc = np.repeat(np.arange(len(arcs)), k - 1)
     j = np.arange(len(arc)) - (np.cumsum(k - 1) - (k - 1))[arc] + 1
     keep[flat[first[arc] + np.rint(j * m[arc] / k[arc]).astype(np.int64)]] = True

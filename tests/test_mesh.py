@@ -8,7 +8,7 @@ from pipeline import shapes
 from pipeline.geometry import face_areas, signed_areas_2d, unique_edges
 from pipeline.gradient import trace
 from pipeline.isolines import GuideField
-from pipeline.triangulate import zip_strips
+from pipeline.triangulate import cell_rings, split_arcs, zip_strips
 
 SHAPES = ["dome", "elongated_peak", "saddle", "three_islands", "starfish", "terrain_tile"]
 
@@ -108,6 +108,37 @@ def test_zip_makes_counter_clockwise_strip_triangles():
     assert len(faces) == len(lower) + len(upper) - 2
     assert (signed_areas_2d(pts, faces) > 0).all()
     assert face_areas(pts, faces).sum() == pytest.approx(4.0)
+
+
+def test_arcs_between_nodes_are_cut_into_edges_of_at_most_l_u():
+    """Nodes at t = 0, 1.0 and 1.6 mm with l_u 0.25 mm: the 1 mm arc gets three
+    inserted vertices, the 0.6 mm arc two; closed with a 2 mm period, the arc
+    back to the first node (0.4 mm) one more."""
+    ts, ns = np.array([0.0, 1.0, 1.6]), np.array([5, 6, 7])
+    t_in, seq, pos, lengths = split_arcs(ts, ns, None, 0.25, 100)
+    np.testing.assert_allclose(t_in, [0.25, 0.5, 0.75, 1.2, 1.4])
+    assert seq.tolist() == [5, 100, 101, 102, 6, 103, 104, 7]
+    assert pos.tolist() == [0, 4, 7]
+    np.testing.assert_allclose(lengths, [1.0, 0.6])
+    t_in, seq, pos, lengths = split_arcs(ts, ns, 2.0, 0.25, 100)
+    np.testing.assert_allclose(t_in, [0.25, 0.5, 0.75, 1.2, 1.4, 1.8])
+    assert seq.tolist() == [5, 100, 101, 102, 6, 103, 104, 7, 105, 5]
+    assert pos.tolist() == [0, 4, 7, 9]
+    np.testing.assert_allclose(lengths, [1.0, 0.6, 0.4])
+
+
+def test_cell_rings_join_half_edge_vertices_and_tell_cells_from_the_outer_face():
+    """A unit square split by its diagonal: two counter-clockwise cells and the
+    clockwise outer face, each ring the half-edges' vertex lists in cycle order."""
+    xy = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    he = [(0, 1, 0, [0]), (1, 2, 0, [1]), (2, 0, -1, [2]), (2, 3, 0, [2]),
+          (3, 0, 0, [3]), (0, 2, -1, [0]), (1, 0, 0, [1]), (0, 3, 0, [0]),
+          (3, 2, 0, [3]), (2, 1, 0, [2])]
+    faces = [[0, 1, 2], [5, 3, 4], [7, 8, 9, 6]]
+    rings, offsets, is_cell = cell_rings(xy, he, faces)
+    assert [r.tolist() for r in rings] == [[0, 1, 2], [0, 2, 3], [0, 3, 2, 1]]
+    assert offsets == [[0, 1, 2, 3], [0, 1, 2, 3], [0, 1, 2, 3, 4]]
+    assert is_cell.tolist() == [True, True, False]
 
 
 @pytest.mark.parametrize("name", SHAPES)
