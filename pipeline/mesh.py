@@ -89,10 +89,10 @@ class _Graph:
             [-1 if np.isnan(p.level) else int(np.argmin(np.abs(self.levels - p.level)))
              for p in self.pieces])
         self.node_xy = []
-        self.piece_t = [[] for _ in self.pieces]   # per piece: arc-length t of its nodes
-        # ... and the same in an array (grown by doubling): add_node searches it often.
-        self._t_buf = [np.empty(16) for _ in self.pieces]
         self.piece_n = [[] for _ in self.pieces]   # per piece: node ids
+        # Per piece, the arc-length t of its nodes in an array grown by doubling
+        # (add_node searches it often); the first len(piece_n[pid]) entries are set.
+        self._t_buf = [np.empty(16) for _ in self.pieces]
         self.bridges = []
         self.connectors = 0
         self._outline_snap = Snapper(self.pieces, [0])
@@ -108,9 +108,9 @@ class _Graph:
         """Put a node on piece ``pid`` at ``t``; reuse one within ``merge_mm``."""
         pc = self.pieces[pid]
         merge_mm = 0.5 * self.l_u if merge_mm is None else merge_mm
-        ts = self.piece_t[pid]
-        if ts and node is None:
-            d = np.abs(self._t_buf[pid][:len(ts)] - t)
+        count = len(self.piece_n[pid])
+        if count and node is None:
+            d = np.abs(self._t_buf[pid][:count] - t)
             if pc.closed:
                 np.minimum(d, pc.length - d, out=d)
             k = int(d.argmin())
@@ -119,17 +119,20 @@ class _Graph:
         if node is None:
             node = len(self.node_xy)
             self.node_xy.append(pc.at([t])[0] if xy is None else np.asarray(xy, float))
-        if len(ts) == len(self._t_buf[pid]):
-            self._t_buf[pid] = np.concatenate([self._t_buf[pid], np.empty(len(ts))])
-        self._t_buf[pid][len(ts)] = t
-        ts.append(float(t))
+        if count == len(self._t_buf[pid]):
+            self._t_buf[pid] = np.concatenate([self._t_buf[pid], np.empty(count)])
+        self._t_buf[pid][count] = t
         self.piece_n[pid].append(node)
         return node
+
+    def piece_t(self, pid):
+        """Arc-length parameters of piece ``pid``'s nodes, mm ((k,) float, in insertion order)."""
+        return self._t_buf[pid][:len(self.piece_n[pid])]
 
     def _seeds(self, pid):
         """Seed parameters on a piece: its nodes thinned to ~d_g, gaps filled."""
         pc = self.pieces[pid]
-        ts = np.sort(np.asarray(self.piece_t[pid], float))
+        ts = np.sort(self.piece_t(pid))
         d_g = self.d_g
         if pc.closed and len(ts) == 0:
             n = max(1, int(round(pc.length / d_g)))
@@ -178,7 +181,7 @@ class _Graph:
                     t_src.append(t)
             self._connect(src, t_src, self.levels[li + 1], snappers[li + 1], tol, li)
             # Isolines no line reached (a new peak past a saddle): trace down from them.
-            orphans = [pid for pid in by_level[li + 1] if not self.piece_t[pid]]
+            orphans = [pid for pid in by_level[li + 1] if not self.piece_n[pid]]
             src, t_src = [], []
             for pid in orphans:
                 for t in self._seeds(pid):
@@ -186,7 +189,7 @@ class _Graph:
                     t_src.append(t)
             self._connect(src, t_src, self.levels[li], snappers[li], tol, li)
             for pid in orphans:
-                if not self.piece_t[pid]:
+                if not self.piece_n[pid]:
                     self._straight_connector(pid, snappers[li], li)
 
     def _connect(self, src, t_src, level, snapper, tol, band):
@@ -307,13 +310,13 @@ class _Graph:
         self.arcs = []     # (vertex chain from node to node, length mm) along pieces
         iso_id = {}
         for pid, pc in enumerate(self.pieces):
-            if not self.piece_t[pid]:
+            if not self.piece_n[pid]:
                 continue
             is_print = not np.isnan(pc.level)
             if is_print:
                 iso_id[pid] = len(iso_id)
-            order = np.argsort(self.piece_t[pid])
-            ts = np.asarray(self.piece_t[pid])[order]
+            order = np.argsort(self.piece_t(pid))
+            ts = self.piece_t(pid)[order]
             ns = np.asarray(self.piece_n[pid])[order]
             t_in, seq, pos, lengths = split_arcs(ts, ns, pc.length if pc.closed else None,
                                                  self.l_u, n_verts)
