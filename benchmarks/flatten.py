@@ -36,8 +36,8 @@ def cap_mesh(triangles):
 
 
 def run_one(triangles, simulate_too=True):
-    from pipeline.flatten import flatten
-    from pipeline.simulate import simulate
+    from pipeline.layout.isoline import flatten
+    from pipeline.simulation.forward import simulate
     mesh, l_u = cap_mesh(triangles)
     t = time.perf_counter()
     flat = flatten(mesh, iterations=50)

@@ -2,7 +2,7 @@
 
 Each case runs in a fresh child process pinned to one core (BLAS threads 1),
 so times are single-core and the peak resident memory (ru_maxrss) is the
-case's own. Targets (issues 3 and 5) are reported next to the measurements;
+case's own. Targets are reported next to the measurements;
 nothing here asserts them.
 
     python benchmarks/pipeline.py                 # everything
@@ -46,9 +46,9 @@ def _child(code, *args):
 
 
 FLATTEN = r"""
-from pipeline import shapes
-from pipeline.mesh import build_mesh
-from pipeline.flatten import flatten
+from pipeline.input import shapes
+from pipeline.meshing.isoline import build_mesh
+from pipeline.layout.isoline import flatten
 target = int(sys.argv[1])
 hf = shapes.dome(diameter_mm=175.0, height_mm=33.0)
 # Refine isoline step and l_u together (the paper's 1 mm : 0.25 mm), so triangles keep
@@ -65,7 +65,7 @@ print(json.dumps({"triangles": len(mesh.faces), "l_u_mm": round(lu, 3), "iterati
 """
 
 PLAN = r"""
-from pipeline.profile import load_profile
+from pipeline.profiles.profile import load_profile
 from hostd import planner
 path, outdir = sys.argv[1], sys.argv[2]
 prof = load_profile("generic-0.5mm")
@@ -99,7 +99,7 @@ print(json.dumps({
 
 SHAPE = r"""
 import numpy as np
-from pipeline import shapes
+from pipeline.input import shapes
 name, out = sys.argv[1], sys.argv[2]
 hf = shapes.REFERENCE[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
 np.save(out + "/" + name + ".npy", hf.z.astype(np.float32))

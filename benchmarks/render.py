@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/render.py [--quick]
 
-Meshes are grids over the synthetic starfish (pipeline.shapes) triangulated
+Meshes are grids over the synthetic starfish (pipeline.input.shapes) triangulated
 inside the footprint, so the triangle count is set by the grid spacing. Times
 are the best of ``repeat`` runs (wall clock, one process); peak RSS is for the
 whole run.
@@ -19,7 +19,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline import hfimage, render, shapes  # noqa: E402
+from pipeline.input import shapes  # noqa: E402
+from pipeline.pictures import hfimage, render  # noqa: E402
 from pipeline.geometry import unique_edges  # noqa: E402
 from pipeline.plyio import write_ply  # noqa: E402
 

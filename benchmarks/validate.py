@@ -21,10 +21,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pipeline.geometry import HeightField  # noqa: E402
-from pipeline.heightfield import load  # noqa: E402
-from pipeline.profile import load_profile  # noqa: E402
-from pipeline.simplify import simplify  # noqa: E402
-from pipeline.validate import fill_depressions, validate  # noqa: E402
+from pipeline.input.heightfield import load  # noqa: E402
+from pipeline.profiles.profile import load_profile  # noqa: E402
+from pipeline.input.simplify import simplify  # noqa: E402
+from pipeline.input.validate import fill_depressions, validate  # noqa: E402
 
 
 def best(fn, repeat):

@@ -32,7 +32,7 @@ class PrinterConfig:
 
 @dataclass(frozen=True)
 class WebConfig:
-    """Status page (issue 7); carried here so one file configures the node."""
+    """Status page; carried here so one file configures the node."""
     host: str = "127.0.0.1"
     port: int = 8080
     token: str = None
@@ -247,7 +247,7 @@ def check_profiles(config):
     """Every printer's profile loads: a misspelt or broken profile is a configuration
     error when the daemon starts, not a printer that keeps failing to connect."""
     from pipeline.errors import PipelineError
-    from pipeline.profile import load_profile
+    from pipeline.profiles.profile import load_profile
     for i, p in enumerate(config.printers):
         try:
             load_profile(p.profile)

@@ -175,8 +175,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
 
     def _profile_hash(self, name):
         if name not in self._profile_hashes:
-            from pipeline.profile import load_profile
-            from pipeline.profile_dump import profile_hash
+            from pipeline.profiles.profile import load_profile
+            from pipeline.profiles.dump import profile_hash
             self._profile_hashes[name] = profile_hash(load_profile(name))
         return self._profile_hashes[name]
 

@@ -63,7 +63,7 @@ class IntakeMixin:
 
     def _add_job(self, name, rel_path, path, side, target):
         from pipeline.errors import PipelineError
-        from pipeline.sidecar import load_sidecar
+        from pipeline.input.sidecar import load_sidecar
         values = dict(target=target, node_id=self.config.node_id,
                       sidecar_path=str(side) if side else None)
         problem = name_problem(name)

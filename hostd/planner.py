@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from hostd.outputs import Staging, atomic_write, json_text
-from pipeline import figure, gcode, hfimage, plyio, render, texture
+from pipeline import plyio
+from pipeline.gcode import writer as gcode
+from pipeline.pictures import figure, hfimage, render, texture
 from pipeline.errors import PipelineError
 from pipeline.plan import plan_file
 

@@ -155,7 +155,7 @@ def child_main(argv):
     from pipeline.errors import PipelineError
     try:
         from hostd import planner
-        from pipeline.profile import load_profile
+        from pipeline.profiles.profile import load_profile
         profile = load_profile(args["profile"])
         result = plan_result(planner.run(args["input"], profile, outdir))
     except PipelineError as exc:

@@ -11,7 +11,7 @@ def link_settings(printer_config):
     """The link's settings for one printer: its baud and its profile's scripts, so a
     pause parks, a resume unparks and a cancel runs this printer's own cancel G-code."""
     from hostd.printer import LinkSettings
-    from pipeline.profile import load_profile
+    from pipeline.profiles.profile import load_profile
 
     profile = load_profile(printer_config.profile)
     return LinkSettings(baud=printer_config.baud,

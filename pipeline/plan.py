@@ -13,15 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import __version__
-from pipeline import heightfield as hfio
-from pipeline.sidecar import settings as sidecar_settings
-from pipeline.flatten import SIGMA_TOL, flatten
+from pipeline.input import heightfield as hfio
+from pipeline.input.sidecar import settings as sidecar_settings
+from pipeline.layout.isoline import SIGMA_TOL, flatten
 from pipeline.geometry import signed_areas_2d
-from pipeline.mesh import build_mesh
-from pipeline.simplify import simplify
-from pipeline.simulate import simulate
-from pipeline.toolpath import plan_toolpaths
-from pipeline.validate import validate
+from pipeline.meshing.isoline import build_mesh
+from pipeline.input.simplify import simplify
+from pipeline.simulation.forward import simulate
+from pipeline.paths.isoline import plan_toolpaths
+from pipeline.input.validate import validate
 
 
 @dataclass
@@ -128,7 +128,7 @@ def plan_file(path, profile, progress=None):
     Parameters
     ----------
     path : str or Path, the height field (image, array or mesh)
-    profile : pipeline.profile.Profile
+    profile : pipeline.profiles.profile.Profile
     progress : callable(stage, message), optional
 
     Returns

@@ -21,15 +21,15 @@ def terrain_dir():
 @functools.lru_cache(maxsize=None)
 def reference_mesh(name, **kwargs):
     """Mesh of a synthetic reference shape (cached across tests in one run)."""
-    from pipeline import shapes
-    from pipeline.mesh import build_mesh
+    from pipeline.input import shapes
+    from pipeline.meshing.isoline import build_mesh
     return build_mesh(shapes.REFERENCE[name](), **kwargs)
 
 
 @functools.lru_cache(maxsize=None)
 def reference_flat(name):
     """(mesh, FlatResult) of a synthetic reference shape with the paper's defaults."""
-    from pipeline.flatten import flatten
+    from pipeline.layout.isoline import flatten
     mesh = reference_mesh(name)
     return mesh, flatten(mesh)
 
@@ -37,7 +37,7 @@ def reference_flat(name):
 @functools.lru_cache(maxsize=None)
 def reference_toolpaths(name, path_width_mm=0.48):
     """(mesh, FlatResult, Toolpaths) of a synthetic reference shape."""
-    from pipeline.toolpath import plan_toolpaths
+    from pipeline.paths.isoline import plan_toolpaths
     mesh, flat = reference_flat(name)
     tp = plan_toolpaths(flat.xy, mesh.faces, mesh.vertex_level, mesh.printing_edges,
                         flat.sigma, path_width_mm)

@@ -24,7 +24,7 @@ FAST_SIM = dict(time_scale=0.0, advanced_ok=True, boot_s=0.0, baud=2000000)
 
 def write_dome(path, diameter_mm=15, height_mm=3):
     """A small dome ``.npy`` (heights in mm) with its ``pixel_mm`` sidecar; returns the path."""
-    from pipeline import shapes
+    from pipeline.input import shapes
     hf = shapes.dome(diameter_mm=diameter_mm, height_mm=height_mm)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

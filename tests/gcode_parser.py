@@ -1,6 +1,6 @@
 """A small G-code parser of our own, for checking what hostd writes.
 
-Independent of ``pipeline.gcode`` on purpose: it tracks the machine state the
+Independent of ``pipeline.gcode.writer`` on purpose: it tracks the machine state the
 way Marlin does (G90/G91 also switch E, M82/M83 switch E only; axes are modal;
 G92 sets positions; G28 homes to 0) and records every motion as a
 :class:`Move`. ``;LAYER:n`` comments (Cura's, 0-based) set the layer index

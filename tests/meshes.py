@@ -14,7 +14,7 @@ from scipy.spatial import Delaunay, cKDTree
 
 import contourpy
 
-from pipeline import shapes
+from pipeline.input import shapes
 from pipeline.geometry import Mesh, edge_index, signed_areas_2d, unique_edges
 
 
@@ -203,7 +203,7 @@ def isoline_mesh(hf, spacing_mm=2.0, l_u=1.5, level0_frac=0.08, fill_mm=None):
 
 
 def reference_mesh(name, l_u=2.0, spacing_mm=2.5, pixel_mm=1.0):
-    """Isoline mesh of one of :data:`pipeline.shapes.REFERENCE` at test resolution."""
+    """Isoline mesh of one of :data:`pipeline.input.shapes.REFERENCE` at test resolution."""
     return isoline_mesh(shapes.REFERENCE[name](pixel_mm=pixel_mm), spacing_mm=spacing_mm, l_u=l_u)
 
 
@@ -259,7 +259,7 @@ def starfish_like(diameter_mm=170.0, height_mm=30.0, arms=5, neck=0.6, pixel_mm=
 
     The outline is ``r_b(phi) = R (neck + (1 - neck) |cos(arms phi / 2)|^2)``
     (non-convex for neck < ~0.8) and the height a spherical-cap profile of
-    ``rho = r / r_b(phi)``. Blunter necks than :func:`pipeline.shapes.starfish`
+    ``rho = r / r_b(phi)``. Blunter necks than :func:`pipeline.input.shapes.starfish`
     keep the total Gaussian curvature positive.
     """
     from pipeline.geometry import HeightField

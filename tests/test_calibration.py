@@ -8,10 +8,10 @@ import pytest
 
 from gcode_parser import parse
 from hostd.cli import main
-from pipeline.calibration import (COLUMNS, fit_measurements, layout_plates, read_measurements,
+from pipeline.profiles.calibration import (COLUMNS, fit_measurements, layout_plates, read_measurements,
                                   thickness_values)
 from pipeline.errors import PlanError
-from pipeline.profile import load_profile
+from pipeline.profiles.profile import load_profile
 
 REPO = Path(__file__).resolve().parents[1]
 GENERIC = REPO / "profiles" / "generic-0.5mm.yaml"

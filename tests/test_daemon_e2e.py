@@ -134,7 +134,7 @@ def test_runaway_plan_fails_its_job_only(tmp_path, dome):
     # A 16-megapixel field passes the input checks but, on a profile that keeps every
     # pixel (validate.working_pixel_mm: 0), needs far more memory than the plan limit:
     # its planning process dies, the other job is planned and printed.
-    from pipeline.profile import find_profile
+    from pipeline.profiles.profile import find_profile
     keep_all = tmp_path / "keep-all-pixels.yaml"
     keep_all.write_text(find_profile("generic-0.5mm").read_text().replace(
         "working_pixel_mm: 0.25", "working_pixel_mm: 0"))
@@ -269,7 +269,7 @@ def test_stop_print_on_the_printer_cancels_the_job(tmp_path, dome, pty_sim):
 @pytest.mark.slow
 def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pty_sim):
     from hostd.printer.settings import script_lines
-    from pipeline.profile import load_profile
+    from pipeline.profiles.profile import load_profile
 
     sim, port = pty_sim
     prof = load_profile("generic-0.5mm")

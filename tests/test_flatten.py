@@ -1,15 +1,15 @@
-"""Flattening (pipeline.flatten, paper 6.2): analytic cap, flat-layout quality, checks."""
+"""Flattening (pipeline.layout.isoline, paper 6.2): analytic cap, flat-layout quality, checks."""
 
 import numpy as np
 import pytest
 
-from pipeline.flatten import (DEFAULT_WEIGHTS, FlatResult, SIGMA_TOL, boundary_intersections,
+from pipeline.layout.isoline import (DEFAULT_WEIGHTS, FlatResult, SIGMA_TOL, boundary_intersections,
                               flatten, flattening_rate, layout_quality)
 from pipeline.geometry import Mesh
 
 from meshes import reference_mesh, spherical_cap, isoline_mesh, two_peaks
 
-RHO_MM, CAP_H_MM = 84.5, 25.0  # the default dome of pipeline.shapes: 120 mm across
+RHO_MM, CAP_H_MM = 84.5, 25.0  # the default dome of pipeline.input.shapes: 120 mm across
 
 
 @pytest.fixture(scope="module")

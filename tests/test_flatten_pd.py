@@ -1,13 +1,13 @@
-"""Projective-dynamics machinery (pipeline.constraints, pipeline.pd): projections,
+"""Projective-dynamics machinery (pipeline.mechanics.constraints, pipeline.mechanics.pd): projections,
 hinge rows, energy descent."""
 
 import numpy as np
 import pytest
 
 from pipeline.geometry import edge_lengths
-from pipeline.constraints import (corner_coefficients, face_geometry, hinge_weights,
+from pipeline.mechanics.constraints import (corner_coefficients, face_geometry, hinge_weights,
                                   project_corners, project_edges, topology)
-from pipeline.pd import EdgeTargets, PDSystem, minimize, minimize_lbfgs
+from pipeline.mechanics.pd import EdgeTargets, PDSystem, minimize, minimize_lbfgs
 
 from meshes import reference_mesh, spherical_cap
 

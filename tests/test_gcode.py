@@ -13,9 +13,9 @@ import pytest
 
 from gcode_parser import parse, point_polyline_distance, sample_move
 from pipeline.errors import PlanError
-from pipeline.gcode import GcodeSettings, write_gcode
-from pipeline.numfmt import format_fixed
-from pipeline.profile import load_profile
+from pipeline.gcode.writer import GcodeSettings, write_gcode
+from pipeline.gcode.numfmt import format_fixed
+from pipeline.profiles.profile import load_profile
 
 PROFILE = load_profile("generic-0.5mm")
 

@@ -1,4 +1,4 @@
-"""G-code of the reference shapes' real tool paths, read back with our own parser (issue 5)."""
+"""G-code of the reference shapes' real tool paths, read back with our own parser."""
 
 import io
 
@@ -7,8 +7,8 @@ import pytest
 
 from conftest import reference_toolpaths
 from gcode_parser import parse
-from pipeline.gcode import write_gcode
-from pipeline.profile import load_profile
+from pipeline.gcode.writer import write_gcode
+from pipeline.profiles.profile import load_profile
 
 
 @pytest.fixture(scope="module")

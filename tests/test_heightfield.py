@@ -10,10 +10,10 @@ import pytest
 import trimesh
 from PIL import Image
 
-from pipeline import heightfield as H
-from pipeline import sidecar as S
+from pipeline.input import heightfield as H
+from pipeline.input import sidecar as S
 from pipeline.errors import InvalidHeightField, InvalidSidecar
-from pipeline.profile import load_profile
+from pipeline.profiles.profile import load_profile
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 TERRAIN = SHARED / "data" / "terrain"
@@ -444,9 +444,9 @@ def test_a_fine_height_map_is_planned_on_working_samples(tmp_path):
     """A height map with 0.05 mm pixels (1.4 megapixels for a 60 mm dome) is planned
     on 0.25 mm samples; the report keeps the input's shape and pixel and says what
     was worked on, and the result matches the dome given at 0.25 mm directly."""
-    from pipeline import shapes
+    from pipeline.input import shapes
     from pipeline.plan import plan_file
-    from pipeline.profile import load_profile
+    from pipeline.profiles.profile import load_profile
     prof = load_profile("generic-0.5mm")
     fine = shapes.dome(diameter_mm=60.0, height_mm=12.0, pixel_mm=0.05)
     np.save(tmp_path / "fine.npy", fine.z.astype(np.float32))

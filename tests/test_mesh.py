@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from conftest import reference_mesh
-from pipeline import shapes
+from pipeline.input import shapes
 from pipeline.geometry import face_areas, signed_areas_2d, unique_edges
-from pipeline.gradient import trace
-from pipeline.isolines import GuideField
-from pipeline.triangulate import cell_rings, split_arcs, zip_strips
+from pipeline.meshing.gradient import trace
+from pipeline.meshing.contours import GuideField
+from pipeline.meshing.triangulate import cell_rings, split_arcs, zip_strips
 
 SHAPES = ["dome", "elongated_peak", "saddle", "three_islands", "starfish", "terrain_tile"]
 
@@ -170,7 +170,7 @@ def test_overlapping_cells_are_refused_with_where_not_a_crash():
     """Three triangles on one edge (cells that overlap) would crash the flattening
     with a bare ValueError; the mesher refuses them as ``mesh.overlap`` with the place."""
     from pipeline.errors import MeshingError
-    from pipeline.mesh import refuse_overlap
+    from pipeline.meshing.isoline import refuse_overlap
     points = np.array([[0, 0, 0], [10, 0, 0], [5, 5, 0], [5, -5, 0], [6, 4, 0.0]])
     good = np.array([[0, 1, 2], [1, 0, 3]])
     refuse_overlap(points, *unique_edges(good, return_counts=True))
@@ -185,13 +185,13 @@ def test_real_terrain_that_meshes_into_overlapping_cells_gets_mesh_overlap(terra
     """Found on vancouver_island_south with a steeper flat-area ramp (flat_slope 0.15):
     four edges with three or four faces. It used to end the plan with "ValueError:
     non-manifold mesh" from the flattening (``plan.crashed`` in the daemon)."""
-    from pipeline import heightfield as hfio
+    from pipeline.input import heightfield as hfio
     from pipeline.errors import MeshingError
-    from pipeline.mesh import build_mesh
-    from pipeline.profile import load_profile
-    from pipeline.sidecar import settings
-    from pipeline.simplify import simplify
-    from pipeline.validate import validate
+    from pipeline.meshing.isoline import build_mesh
+    from pipeline.profiles.profile import load_profile
+    from pipeline.input.sidecar import settings
+    from pipeline.input.simplify import simplify
+    from pipeline.input.validate import validate
     prof = load_profile("generic-0.5mm")
     hf, side = hfio.load(terrain_dir / "vancouver_island_south.png", profile=prof)
     opts = settings(side, prof)

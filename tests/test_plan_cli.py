@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from pipeline import shapes
+from pipeline.input import shapes
 
-# The report keys other tools read (issues 3 and 5): renaming any is a breaking change.
+# The report keys other tools read: renaming any is a breaking change.
 CONTRACT = {
     "input": str, "profile": str, "pipeline_version": str,
     "heightfield": {"shape": list, "longest_diameter_mm": float, "max_height_mm": float,
@@ -137,8 +137,8 @@ def test_staging_is_discarded_when_writing_fails(small_dome, tmp_path, monkeypat
 
 
 def test_sidecar_overrides_the_simplification_settings(tmp_path):
-    from pipeline.sidecar import load_sidecar, settings
-    from pipeline.profile import load_profile
+    from pipeline.input.sidecar import load_sidecar, settings
+    from pipeline.profiles.profile import load_profile
     side = tmp_path / "x.yaml"
     side.write_text("min_prominence_mm: 6\nsmooth_mm: 3.5\nmax_fill_mm: 4\n")
     opts = settings(load_sidecar(side), load_profile("generic-0.5mm"))
@@ -167,7 +167,7 @@ def test_layout_problems_name_the_fix_that_helps_and_split_the_invalid_edges():
     shrink too much, since the two have different fixes."""
     from types import SimpleNamespace
     from pipeline.plan import FOLD_LIMIT, layout_problems
-    from pipeline.profile import load_profile
+    from pipeline.profiles.profile import load_profile
     lim = load_profile("generic-0.5mm").shrink_limits
     sigma = np.concatenate([np.full(70, 0.1), np.full(20, -0.05), np.full(10, lim.s_max + 0.1)])
     flat = SimpleNamespace(overlapping=True, flipped_triangles=12, boundary_intersections=1,

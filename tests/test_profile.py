@@ -7,8 +7,8 @@ import pytest
 import yaml
 
 from pipeline.errors import InvalidProfile
-from pipeline.profile import GCODE_PLACEHOLDERS, list_profiles, load_profile, parse_profile
-from pipeline.profile_dump import profile_dict, profile_hash, profile_to_yaml
+from pipeline.profiles.profile import GCODE_PLACEHOLDERS, list_profiles, load_profile, parse_profile
+from pipeline.profiles.dump import profile_dict, profile_hash, profile_to_yaml
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = ["generic-0.5mm", "prusa-mk3s-0.4mm"]

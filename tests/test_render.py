@@ -9,11 +9,12 @@ import pytest
 import trimesh
 from PIL import Image
 
-from pipeline import hfimage, render, shapes
-from pipeline.figure import INVALID_HIGH, INVALID_LOW
+from pipeline.input import shapes
+from pipeline.pictures import hfimage, render
+from pipeline.pictures.figure import INVALID_HIGH, INVALID_LOW
 from pipeline.plyio import write_ply
-from pipeline.raster import draw_segments, pixel_barycentrics, rasterize_triangles
-from pipeline.render import colormap
+from pipeline.pictures.raster import draw_segments, pixel_barycentrics, rasterize_triangles
+from pipeline.pictures.render import colormap
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from pipeline import shapes
+from pipeline.input import shapes
 from pipeline.geometry import HeightField
-from pipeline.heightfield import load
-from pipeline.profile import load_profile
-from pipeline.simplify import MAX_LISTED, interior_maxima, simplify, smooth
-from pipeline.validate import Grid, fill_depressions, validate
+from pipeline.input.heightfield import load
+from pipeline.profiles.profile import load_profile
+from pipeline.input.simplify import MAX_LISTED, interior_maxima, simplify, smooth
+from pipeline.input.validate import Grid, fill_depressions, validate
 
 PX = 0.5
 

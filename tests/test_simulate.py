@@ -1,10 +1,10 @@
-"""Forward simulation (pipeline.simulate, paper 6.2.4): does the layout rise into the target?"""
+"""Forward simulation (pipeline.simulation.forward, paper 6.2.4): does the layout rise into the target?"""
 
 import numpy as np
 import pytest
 
-from pipeline.flatten import flatten
-from pipeline.simulate import SimResult, align, simulate
+from pipeline.layout.isoline import flatten
+from pipeline.simulation.forward import SimResult, align, simulate
 
 from meshes import (isoline_mesh, longest_diameter, reference_mesh, spherical_cap,
                     starfish_like, two_peaks)
@@ -139,11 +139,11 @@ def _planned(name):
     """``name`` meshed, flattened and simulated as ``hostd plan`` does (generic
     profile: pits filled, smoothed by smooth_mm, l_u 0.25 mm, coarse sheet
     first), sigma clamped to the material's range. Returns (sim, diameter)."""
-    from pipeline import shapes
-    from pipeline.mesh import build_mesh
-    from pipeline.profile import load_profile
-    from pipeline.simplify import simplify
-    from pipeline.validate import validate
+    from pipeline.input import shapes
+    from pipeline.meshing.isoline import build_mesh
+    from pipeline.profiles.profile import load_profile
+    from pipeline.input.simplify import simplify
+    from pipeline.input.validate import validate
     prof = load_profile("generic-0.5mm")
     mp, lim = prof.mesh, prof.shrink_limits
     hf, _ = validate(shapes.REFERENCE[name](), 2.0, bed_mm=prof.bed_mm)
@@ -163,9 +163,9 @@ def test_planned_saddle_rises_within_one_percent():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue 3's 1 % is not met: the starfish's arms are ridges that bend "
-                          "without stretching, and bending toward flat lifts them: 2.3 % after "
-                          "300 + 300 iterations, 2.9 % at rest (900); the per-step stop of the "
+@pytest.mark.xfail(reason="the 1 % displacement target is not met: the starfish's arms are "
+                          "ridges that bend without stretching, and bending toward flat lifts "
+                          "them: 2.3 % after 300 + 300 iterations, 2.9 % at rest (900); the per-step stop of the "
                           "PD this replaced reported 0.85 % mid-way", strict=True)
 def test_planned_starfish_rises_within_one_percent():
     sim, d = _planned("starfish")
@@ -182,8 +182,8 @@ def test_coarse_sheet_rises_like_the_full_mesh(name, size):
     of the full mesh settled alone from the flat start. Measured: dome 0.240 %
     against 0.245 %, saddle 1.044 % against 1.022 % (the coarse sheet alone:
     0.209 % and 1.575 %)."""
-    from pipeline import shapes
-    from pipeline.mesh import build_mesh
+    from pipeline.input import shapes
+    from pipeline.meshing.isoline import build_mesh
     mesh = build_mesh(shapes.REFERENCE[name](**size), l_sim_mm=2.0)
     flat = flatten(mesh, s_min=0.0, s_max=0.343)
     full = simulate(mesh, flat, s_min=0.0, s_max=0.343, coarse=False)

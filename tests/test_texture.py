@@ -10,7 +10,7 @@ from PIL import Image
 
 from pipeline.errors import PlanError
 from pipeline.geometry import HeightField
-from pipeline.texture import (MM_PER_INCH, boundary_loops, face_opacity, outline_svg,
+from pipeline.pictures.texture import (MM_PER_INCH, boundary_loops, face_opacity, outline_svg,
                               registration_marks, save_texture, texture_image, vertex_colors)
 
 SVG = "{http://www.w3.org/2000/svg}"
@@ -243,7 +243,7 @@ def test_bad_input_raises_clear_error():
 
 
 def test_colour_pass_in_row_bands_matches_one_pass(monkeypatch):
-    from pipeline import texture
+    from pipeline.pictures import texture
     xy, faces = grid(41, 60.0)
     v = np.c_[xy, 3.0 * np.sin(xy[:, :1] / 7.0)]
     colors = np.random.default_rng(1).integers(0, 256, (len(xy), 3)).astype(np.uint8)

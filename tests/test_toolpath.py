@@ -5,8 +5,8 @@ import pytest
 import shapely
 
 from conftest import reference_toolpaths
-from pipeline.pathstats import coverage_grid, isoline_angles
-from pipeline.toolpath import boundary_loop, merge_collinear, path_field, plan_toolpaths
+from pipeline.paths.stats import coverage_grid, isoline_angles
+from pipeline.paths.isoline import boundary_loop, merge_collinear, path_field, plan_toolpaths
 
 PW = 0.48
 

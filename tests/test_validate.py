@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from pipeline import shapes
+from pipeline.input import shapes
 from pipeline.errors import InvalidHeightField, PlanError
 from pipeline.geometry import HeightField
-from pipeline.heightfield import load
-from pipeline.profile import load_profile
-from pipeline.validate import Grid, check_fits_bed, fill_depressions, validate
+from pipeline.input.heightfield import load
+from pipeline.profiles.profile import load_profile
+from pipeline.input.validate import Grid, check_fits_bed, fill_depressions, validate
 
 PX = 0.5
 

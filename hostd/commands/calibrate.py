@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import __version__
-from pipeline.calibration import (COLUMNS, CalibrationError, calibration_traces, fit_measurements,
+from pipeline.profiles.calibration import (COLUMNS, CalibrationError, calibration_traces, fit_measurements,
                                   layout_plates, layout_svg, measurements_template,
                                   read_measurements, thickness_values)
 from pipeline.errors import PipelineError
-from pipeline.gcode import GcodeSettings, write_thickness_gcode
-from pipeline.profile import load_profile
-from pipeline.profile_dump import profile_to_yaml
+from pipeline.gcode.writer import GcodeSettings, write_thickness_gcode
+from pipeline.profiles.profile import load_profile
+from pipeline.profiles.dump import profile_to_yaml
 
 PROG = "hostd calibrate"
 

@@ -5,7 +5,7 @@ import time
 from pathlib import Path
 
 from pipeline.errors import PipelineError
-from pipeline.profile import load_profile
+from pipeline.profiles.profile import load_profile
 
 
 def add_parser(sub):
@@ -25,7 +25,7 @@ def add_parser(sub):
 def _profile_name(args):
     if args.profile:
         return args.profile
-    from pipeline.sidecar import load_sidecar, sidecar_path
+    from pipeline.input.sidecar import load_sidecar, sidecar_path
     try:
         side = load_sidecar(sidecar_path(Path(args.input)))
         if side is not None and getattr(side, "profile", None):

@@ -1,4 +1,4 @@
-"""Status page and JSON API of a hostd node (issue 7).
+"""Status page and JSON API of a hostd node.
 
 - :func:`hostd.web.app.create_app` -- the Flask app (page, farm view, API, OctoPrint subset,
   ``/metrics``); reads the job store and cheap snapshots of a running daemon.

@@ -2,15 +2,15 @@
 that simplification removed (``NAME.input.png``).
 
 numpy + Pillow (+ contourpy for the isolines); top view with +y (north) up and the
-mm-to-pixel map in ``image.info`` like :mod:`pipeline.render`'s pictures.
+mm-to-pixel map in ``image.info`` like :mod:`pipeline.pictures.render`'s pictures.
 """
 
 import numpy as np
 from PIL import Image
 
-from pipeline.figure import (WHITE, colorbar, colormap, fmt_number, framed, nice_ceil, scale_bar,
+from pipeline.pictures.figure import (WHITE, colorbar, colormap, fmt_number, framed, nice_ceil, scale_bar,
                              stat_lines, swatch, to_image)
-from pipeline.raster import draw_segments
+from pipeline.pictures.raster import draw_segments
 
 PEAK_COLOR = (215, 25, 35)
 

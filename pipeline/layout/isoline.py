@@ -1,7 +1,7 @@
 """Flatten a target mesh into a printable 2-D layout (paper 6.2, 6.2.1-6.2.3).
 
 Each iteration runs one projective-dynamics step (constraints of
-:mod:`pipeline.pd`: printing strain with the range l0/(1-s_min)..l0/(1-s_max),
+:mod:`pipeline.mechanics.pd`: printing strain with the range l0/(1-s_min)..l0/(1-s_max),
 bridge strain, cotangent bending toward flat, corner shear) followed by the
 paper's three vertex relocations (flattening, stretching, spreading). The
 global system is factored once. At the end z is set to 0 and a few purely
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import edge_index, edge_lengths, signed_areas_2d
-from pipeline.constraints import topology
-from pipeline.pd import EdgeTargets, PDSystem, minimize
+from pipeline.mechanics.constraints import topology
+from pipeline.mechanics.pd import EdgeTargets, PDSystem, minimize
 
 DEFAULT_WEIGHTS = {"bridge": 1.0, "printing": 1.0, "bending": 0.025, "shear": 0.25,
                    "flattening": 0.3, "stretching": 1.0, "spreading": 0.5}

@@ -1,14 +1,14 @@
 """Shaded 3-D views of triangle meshes (numpy + Pillow): orthographic camera, z-buffer,
 per-pixel normals, Lambert + Blinn-Phong light, soft ground shadow, height contours.
 
-Used by :func:`pipeline.render.preview_image`; usable on its own for thumbnails.
+Used by :func:`pipeline.pictures.render.preview_image`; usable on its own for thumbnails.
 """
 
 import numpy as np
 from PIL import Image, ImageFilter
 
-from pipeline.figure import colormap
-from pipeline.raster import pixel_barycentrics, rasterize_triangles
+from pipeline.pictures.figure import colormap
+from pipeline.pictures.raster import pixel_barycentrics, rasterize_triangles
 
 
 def _vertex_normals(vertices, faces):

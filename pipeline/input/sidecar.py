@@ -11,7 +11,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import InvalidSidecar
-from pipeline.profile import MeshParams, ValidateParams
+from pipeline.profiles.profile import MeshParams, ValidateParams
 
 
 @dataclass(frozen=True)

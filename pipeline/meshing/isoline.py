@@ -1,19 +1,19 @@
 """Isoline / gradient-line graph and its triangle mesh (paper 6.1).
 
-1. Equidistant isolines of the guide field (``pipeline.isolines``), clipped to
+1. Equidistant isolines of the guide field (``pipeline.meshing.contours``), clipped to
    the footprint; the outline itself is the lowest isoline when the footprint
    edge is level (a dome, an island), else a boundary on which open isoline
    arcs end (a tile cut from a map).
 2. Gradient lines, band by band: seeds on each isoline (the ends of the lines
    that arrived from below, plus new seeds where lines diverge) are traced up
-   to the next isoline (``pipeline.gradient``); an isoline no line reached gets
+   to the next isoline (``pipeline.meshing.gradient``); an isoline no line reached gets
    lines traced down from it. Their intersections with the isolines are the
    graph's nodes; edges run along isolines or gradient lines.
 3. The graph's cells (faces of the planar graph, found from the rotation
    system) are triangulated: cells between two isolines are zipped by the
    shortest diagonal after upsampling isoline edges to ``l_u``; peak and saddle
    polygons are fanned around an inserted centre vertex
-   (``pipeline.triangulate``).
+   (``pipeline.meshing.triangulate``).
 4. Optionally the same cells again with fewer isoline vertices: the coarser
    sheet the forward simulation can run on (``Mesh.sheet``).
 """
@@ -23,9 +23,9 @@ import shapely
 
 from pipeline.errors import MeshingError
 from pipeline.geometry import Mesh, SimSheet, signed_areas_2d, unique_edges
-from pipeline.gradient import Snapper, trace
-from pipeline.isolines import GuideField, Piece, footprint_outline, isoline_pieces, points_at
-from pipeline.triangulate import (cell_rings, drop_degenerate, ear_clip, fan, main_runs, run_keys,
+from pipeline.meshing.gradient import Snapper, trace
+from pipeline.meshing.contours import GuideField, Piece, footprint_outline, isoline_pieces, points_at
+from pipeline.meshing.triangulate import (cell_rings, drop_degenerate, ear_clip, fan, main_runs, run_keys,
                                   run_level, sim_sheet, split_arcs, split_ring, trace_faces,
                                   zip_strips)
 

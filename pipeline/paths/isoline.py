@@ -23,7 +23,7 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
 from pipeline.geometry import boundary_loops, hat_gradients, unique_edges
-from pipeline.pathstats import path_metrics
+from pipeline.paths.stats import path_metrics
 
 
 @dataclass

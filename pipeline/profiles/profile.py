@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import InvalidProfile
-from pipeline.shrink import ShrinkCurve
+from pipeline.profiles.shrink import ShrinkCurve
 
 # s_min/s_max may lie outside the fitted curve by this much (fit noise, half a percent
 # of shrink) before we clamp them to it.
@@ -151,7 +151,7 @@ class Defaults:
 class Profile:
     """A validated printer profile.
 
-    ``shrink_curve`` is the fitted :class:`pipeline.shrink.ShrinkCurve` (its
+    ``shrink_curve`` is the fitted :class:`pipeline.profiles.shrink.ShrinkCurve` (its
     ``thickness_mm``, ``shrink`` and ``degree`` are the YAML's points and degree).
     ``source`` is the file it came from, ``raw`` the parsed YAML as written,
     ``warnings`` what was adjusted at load (e.g. s_max clamped to the curve).

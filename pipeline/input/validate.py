@@ -14,7 +14,7 @@ pass height (Kruskal on the basin graph, minimum spanning tree from scipy)
 gives every depression's spill level and depth (its persistence) exactly as
 priority-flood would. Filled flats then get an epsilon slope toward their
 outlet (distances from csgraph), so every filled cell has a strictly
-descending path to the boundary. ``pipeline.simplify`` reuses the same
+descending path to the boundary. ``pipeline.input.simplify`` reuses the same
 machinery on the negated field to cut low peaks.
 """
 

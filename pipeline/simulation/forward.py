@@ -4,11 +4,11 @@ The flat sheet is given the lengths it will have after the hot-water bath:
 every printing edge ``(1 - sigma) * l_flat``, every bridge edge its flat
 length. Corner rest angles and hinge cotangents come from those lengths
 (law of cosines), so the constraints agree with each other; bending pulls
-toward flat as in :mod:`pipeline.flatten`. No relocations. The sheet starts
+toward flat as in :mod:`pipeline.layout.isoline`. No relocations. The sheet starts
 flat with an upward bump (the bath pushes it one way; see ``pop`` for why
 its height matters) and settles to rest under L-BFGS on the constraint
 energy, preconditioned with the once-factored PD matrix
-(:func:`pipeline.pd.minimize_lbfgs`); the result is rigidly aligned to the target (Kabsch, identity
+(:func:`pipeline.mechanics.pd.minimize_lbfgs`); the result is rigidly aligned to the target (Kabsch, identity
 correspondence).
 
 Where the mesh carries a coarser sheet (``Mesh.sheet``: the same cells with
@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.flatten import DEFAULT_WEIGHTS, _printing_mask
+from pipeline.layout.isoline import DEFAULT_WEIGHTS, _printing_mask
 from pipeline.geometry import edge_index, edge_lengths
-from pipeline.constraints import topology
-from pipeline.pd import EdgeTargets, PDSystem, minimize_lbfgs
+from pipeline.mechanics.constraints import topology
+from pipeline.mechanics.pd import EdgeTargets, PDSystem, minimize_lbfgs
 
 
 @dataclass
@@ -113,7 +113,7 @@ def simulate(mesh, flat, iterations=300, weights=None, s_min=None, s_max=None,
     rest_tol : float
         At rest when the sheet moved less than this times the layout's
         diameter (root mean square over its vertices) in the last ten
-        iterations (see :func:`pipeline.pd.minimize_lbfgs`): 3.5 um on a
+        iterations (see :func:`pipeline.mechanics.pd.minimize_lbfgs`): 3.5 um on a
         175 mm part.
     s_min, s_max : float, optional
         Clamp sigma to what the printer can make (default: no clamping).

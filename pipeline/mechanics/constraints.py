@@ -4,7 +4,7 @@ Index structure (edges, hinges, corners) computed once per mesh, intrinsic
 triangle quantities from edge lengths, the cotangent hinge rows of the
 bending constraint, and the vectorised Euclidean projections of the edge
 strain and corner shear constraints. Vectors are component-major, (d, k).
-Used by :mod:`pipeline.pd`.
+Used by :mod:`pipeline.mechanics.pd`.
 """
 
 from dataclasses import dataclass

@@ -1,7 +1,7 @@
 """Projective dynamics (local/global, as in ShapeOp) for triangle sheets.
 
-Shared machinery of :mod:`pipeline.flatten` and :mod:`pipeline.simulate`:
-the constraints of paper 6.2.1 (projections in :mod:`pipeline.constraints`)
+Shared machinery of :mod:`pipeline.layout.isoline` and :mod:`pipeline.simulation.forward`:
+the constraints of paper 6.2.1 (projections in :mod:`pipeline.mechanics.constraints`)
 as rows of one sparse system, a fused vectorised local step, a global step
 that is factored once, and Anderson-accelerated iteration to equilibrium.
 
@@ -14,7 +14,7 @@ an edge row is ``(x_j - x_i) / sqrt(l0)`` (energy ``w (l - t)^2 / l0``, mm),
 a hinge row is ``sqrt(3 / (A0 + A1)) K0`` (Wardetzky et al. isometric
 bending, dimensionless), a shear corner is two rows ``x_k / sqrt(L_k)``.
 ShapeOp squares its weights (they multiply the rows); here they multiply the
-energy, which is what "sum_i w_i A_i^T A_i" in the issue means. With edges
+energy, which is what "sum_i w_i A_i^T A_i" in the paper means. With edges
 ~1-2 mm long, w_bending / w_edge = 0.025 then behaves like a sheet ~0.6-0.8 mm
 thick (bending/stretching stiffness ~ t^2 / 12), close to the printed sheets.
 """
@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from pipeline.constraints import (corner_coefficients, face_geometry, hinge_weights,
+from pipeline.mechanics.constraints import (corner_coefficients, face_geometry, hinge_weights,
                                   project_corners, project_edges, row_lengths)
 
 # Faces x 3 per block of the local step: big enough to amortise numpy's call

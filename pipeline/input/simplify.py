@@ -20,7 +20,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from pipeline.geometry import HeightField
-from pipeline.validate import EPS_MM, Grid, fill_depressions
+from pipeline.input.validate import EPS_MM, Grid, fill_depressions
 
 # Removed peaks listed individually in the report (all are counted).
 MAX_LISTED = 50

@@ -8,7 +8,7 @@ from dataclasses import fields
 
 import yaml
 
-from pipeline.profile import Profile, parse_profile
+from pipeline.profiles.profile import Profile, parse_profile
 
 
 def profile_dict(profile):

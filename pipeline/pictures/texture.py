@@ -12,12 +12,12 @@ Frames (all mm):
 
 - *layout*: the flat sheet's own coordinates ``xy`` (as the flattening returns them);
 - *bbox*: the layout shifted so the lower-left corner of its bounding box is 0, 0.
-  The G-code places the part by its bounding box (``pipeline.gcode`` centres it on
+  The G-code places the part by its bounding box (``pipeline.gcode.writer`` centres it on
   the bed), so bbox coordinates plus the bed position of that corner give bed
   coordinates;
 - *image*: the PNG and the SVG share one page: the bbox grown by ``margin_mm`` on
   every side, +y up in mm, rows downward in pixels (pixel (row i, col j) covers
-  ``[j, j+1) x [i, i+1)`` in pixel units, as in :mod:`pipeline.raster`).
+  ``[j, j+1) x [i, i+1)`` in pixel units, as in :mod:`pipeline.pictures.raster`).
 
 Registration marks (crosshair circles) sit at the four corners of the bbox,
 pushed ``margin_mm / 2`` outwards along x and y, so they never touch the part and
@@ -32,7 +32,7 @@ from scipy.ndimage import map_coordinates
 
 from pipeline.errors import PlanError
 from pipeline.geometry import boundary_loops, face_areas
-from pipeline.raster import draw_segments, pixel_barycentrics, rasterize_triangles
+from pipeline.pictures.raster import draw_segments, pixel_barycentrics, rasterize_triangles
 
 __all__ = ["MM_PER_INCH", "MARK_NAMES", "vertex_colors", "face_opacity", "registration_marks",
            "texture_image", "save_texture", "boundary_loops", "outline_svg"]

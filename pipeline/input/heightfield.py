@@ -12,7 +12,7 @@ Error codes (``InvalidHeightField``): ``heightfield.not_found``, ``.empty``,
 the extension says), ``.truncated``, ``.unreadable``, ``.too_many_pixels``,
 ``.pickled``, ``.bad_dtype``, ``.npz_key``, ``.not_2d``, ``.non_finite``,
 ``.no_footprint``, ``.flat``, ``.too_small``, ``.color_mismatch``. The
-sidecar is read by :mod:`pipeline.sidecar`.
+sidecar is read by :mod:`pipeline.input.sidecar`.
 """
 
 import warnings
@@ -24,9 +24,9 @@ from PIL import Image
 
 from pipeline.errors import InvalidHeightField
 from pipeline.geometry import HeightField
-from pipeline.profile import Defaults, ValidateParams
-from pipeline.raster import pixel_barycentrics, rasterize_triangles
-from pipeline.sidecar import load_sidecar, sidecar_path
+from pipeline.profiles.profile import Defaults, ValidateParams
+from pipeline.pictures.raster import pixel_barycentrics, rasterize_triangles
+from pipeline.input.sidecar import load_sidecar, sidecar_path
 
 IMAGE_EXT = (".png", ".tif", ".tiff")
 ARRAY_EXT = (".npy", ".npz")
@@ -57,7 +57,7 @@ def load(path, profile=None, max_pixels=None):
     ----------
     path : str or Path
         ``.png``, ``.tif``/``.tiff``, ``.npy``, ``.npz``, ``.stl``, ``.obj``, ``.ply`` or ``.glb``.
-    profile : pipeline.profile.Profile, optional
+    profile : pipeline.profiles.profile.Profile, optional
         Supplies ``defaults`` (scale without sidecar) and ``validate`` limits.
     max_pixels : int, optional
         Refuse inputs declaring more samples (default: the profile's

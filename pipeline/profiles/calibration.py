@@ -4,7 +4,7 @@ Print rectangles of parallel paths (55 x 20 mm, ``layers`` layers) at evenly
 spaced layer thicknesses with a few repeats each; after the hot-water bath a
 person measures each rectangle's length along its paths. The shrink per
 specimen is ``1 - measured / printed``; the per-thickness means are fitted with
-the profile's polynomial (:class:`pipeline.shrink.ShrinkCurve`) and become the
+the profile's polynomial (:class:`pipeline.profiles.shrink.ShrinkCurve`) and become the
 profile's new ``shrink_curve``.
 
 A rectangle's printed length is its outer length along the paths (the bead
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.errors import InvalidProfile, PipelineError, PlanError
-from pipeline.shrink import ShrinkCurve
+from pipeline.profiles.shrink import ShrinkCurve
 
 LENGTH_MM = 55.0
 WIDTH_MM = 20.0

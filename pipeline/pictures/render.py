@@ -1,8 +1,8 @@
-"""The pictures of a plan: stress layout, 3-D preview, tool paths (the input: :mod:`pipeline.hfimage`).
+"""The pictures of a plan: stress layout, 3-D preview, tool paths (the input: :mod:`pipeline.pictures.hfimage`).
 
 numpy + Pillow only (no display, no matplotlib); arrays in, ``PIL.Image`` out.
-Drawing is vectorised in :mod:`pipeline.raster`; legends and bars in
-:mod:`pipeline.figure`. Top views (stress, tool paths, height field) put +y
+Drawing is vectorised in :mod:`pipeline.pictures.raster`; legends and bars in
+:mod:`pipeline.pictures.figure`. Top views (stress, tool paths, height field) put +y
 (north) up and record their mm-to-pixel map in ``image.info``:
 ``px_per_mm`` and ``origin_px`` (the pixel position of x = y = 0 mm), so a
 caller can overlay or hit-test in millimetres.
@@ -11,12 +11,12 @@ caller can overlay or hit-test in millimetres.
 import numpy as np
 from PIL import Image, ImageDraw
 
-from pipeline.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, WHITE, colorbar, colormap,
+from pipeline.pictures.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, WHITE, colorbar, colormap,
                              font, fmt_number, framed, nice_ceil, scale_bar, stat_lines, swatch,
                              text_size, to_image)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
-from pipeline.raster import dash_segments, draw_segments, rasterize_triangles
-from pipeline.shading import camera_basis, project, shaded_view, view_fit
+from pipeline.pictures.raster import dash_segments, draw_segments, rasterize_triangles
+from pipeline.pictures.shading import camera_basis, project, shaded_view, view_fit
 
 __all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "montage", "shaded_view"]
 

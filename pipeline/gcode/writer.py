@@ -17,7 +17,7 @@ filament retracted by ``retraction.length_mm`` (the shipped profiles end the
 purge with a retraction), so the first trace only unretracts; the end G-code
 does the final retraction.
 
-Arc fitting (``toolpath.arc_tolerance_mm > 0``, see :mod:`pipeline.arcs`)
+Arc fitting (``toolpath.arc_tolerance_mm > 0``, see :mod:`pipeline.gcode.arcs`)
 writes G2/G3 with the Z and E change spread along the arc, which Marlin runs
 with ARC_SUPPORT (on by default in Marlin 2).
 
@@ -25,11 +25,8 @@ Viewer comments: Cura's ``;FLAVOR:``, ``;TIME:``, ``;Filament used:``,
 ``;LAYER_COUNT:``, ``;LAYER:n`` (0-based, so layer index ``i_l = n + 1``) and
 ``;TYPE:``; PrusaSlicer's ``;LAYER_CHANGE``/``;Z:``/``;HEIGHT:`` and its
 ``; filament used [mm] =`` / ``[g]`` / ``; estimated printing time`` lines.
-The time estimate is :mod:`pipeline.printtime`'s trapezoid model.
-
-Strings are built per field with vectorised integer formatting
-(:mod:`pipeline.numfmt`) over all moves of a layer at once; only the travel
-blocks between traces are built in a Python loop over traces.
+The time estimate, figures and header are :mod:`pipeline.gcode.summary`'s; the layers'
+text is :mod:`pipeline.gcode.layers`'.
 """
 
 import math
@@ -39,12 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import __version__
-from pipeline.arcs import moves_with_arcs
 from pipeline.errors import PlanError
-from pipeline.numfmt import fmt, format_fixed
-from pipeline.printtime import (ACCELERATION_MM_S2, JUNCTION_DEVIATION_MM, MAX_Z_SPEED_MM_S,
-                                estimate_time_text, polyline_time_s, trapezoid_s)
+from pipeline.gcode.arcs import moves_with_arcs
+from pipeline.gcode.layers import emit, text_of_moves
+from pipeline.gcode.printtime import ACCELERATION_MM_S2, JUNCTION_DEVIATION_MM
+from pipeline.gcode.summary import estimate, header_lines, summary
 
 @dataclass(frozen=True)
 class GcodeSettings:
@@ -79,7 +75,7 @@ class GcodeSettings:
 
     @classmethod
     def from_profile(cls, profile, **overrides):
-        """Settings from a :class:`pipeline.profile.Profile` (``overrides`` win)."""
+        """Settings from a :class:`pipeline.profiles.profile.Profile` (``overrides`` win)."""
         if isinstance(profile, cls):
             return cls(**{**profile.__dict__, **overrides})
         vals = dict(
@@ -238,7 +234,7 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True):
         Ordered tool paths in the flattened layout's coordinates.
     sigmas : list of (k_i - 1,) float
         Shrink ratio per segment.
-    profile : pipeline.profile.Profile or GcodeSettings
+    profile : pipeline.profiles.profile.Profile or GcodeSettings
     out : path or file object (text or binary)
         A path is written to ``path + ".part"`` and renamed when complete.
     name : str
@@ -284,12 +280,33 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     if len(traces) != len(thetas_mm):
         raise PlanError("%d traces but %d thickness arrays" % (len(traces), len(thetas_mm)),
                         code="gcode.bad_input", fix="give one thickness array per trace")
+    mv, q, starts, th_um, labels = _layer_moves(traces, thetas_mm, settings, center, labels,
+                                                arc_values, arc_value_span)
+    th_mm = th_um / 1000.0
+    text = text_of_moves(mv, settings)
+    timing = estimate(q, starts, mv, text, settings)
+    stats = summary(mv, q, starts, th_mm, text, timing, settings, clamped_segments)
+    header = header_lines(mv, th_mm, text, timing, settings, name, header_extra)
+    sink = _write(out, lambda sink: emit(sink, header, mv, th_mm.max(), text, timing, settings,
+                                         labels))
+    stats["lines"] = sink.lines
+    stats["bytes"] = sink.bytes
+    if settings.arc_tolerance_mm > 0:
+        moves_saved = stats["segments"] - len(mv["th"])
+        stats["lines_without_arcs"] = sink.lines + moves_saved * settings.layers
+    return stats
+
+
+def _layer_moves(traces, thetas_mm, settings, center, labels, arc_values, arc_value_span):
+    """One layer's moves: traces placed on the bed, quantised, thickness in whole um,
+    runs of chords fitted by arcs. Returns ``(mv, q, starts, th_um, labels)`` (see
+    :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um per segment; labels of
+    kept traces)."""
     if labels is not None:
         labels = [labels[i] for i in range(len(traces))]
     arrays = [thetas_mm] + ([arc_values] if arc_values is not None else [])
-    bed = settings.bed_mm
-    offset, over = bed_overhang(traces, bed, center=center)
-    _check_bed(over, bed)
+    offset, over = bed_overhang(traces, settings.bed_mm, center=center)
+    _check_bed(over, settings.bed_mm)
     q, starts, vals, kept = _prepare(traces, arrays, offset)
     if labels is not None:
         labels = [labels[i] for i in kept]
@@ -297,203 +314,32 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     hi_um = int(math.floor(settings.thickness_max_mm * 1000 + 1e-6))
     th_um = np.clip(np.rint(vals[0] * 1000.0), lo_um, hi_um).astype(np.int64)
     arc_vals = vals[1] if arc_values is not None else th_um / 1000.0
-    layers = settings.layers
-    top_um = int(th_um.max()) * layers + int(round(settings.z_hop_mm * 1000))
+    top_um = int(th_um.max()) * settings.layers + int(round(settings.z_hop_mm * 1000))
     if top_um > settings.max_z_mm * 1000:
         raise PlanError("the part needs %.3f mm of Z but the printer has %g mm"
                         % (top_um / 1000, settings.max_z_mm), code="gcode.too_tall",
                         fix="use fewer layers or thinner layers")
-
     mv = moves_with_arcs(q, starts, th_um, arc_vals, settings.arc_tolerance_mm, arc_value_span)
-    n_traces = len(starts) - 1
-    n_moves = len(mv["th"])
-    n_segments = len(q) - n_traces
-    area = settings.filament_area_mm2
-    e_mm = mv["len"] * (mv["th"] / 1000.0) * settings.path_width_mm / area
-    e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
-    e_trace_end = e_cum[np.concatenate([mv["first"][1:], [n_moves]]) - 1]
-    if settings.relative_e:
-        e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
-    else:
-        e_strings = format_fixed(e_cum, 5, " E")
-    filament_mm = e_cum[-1] / 1e5 * layers
+    return mv, q, starts, th_um, labels
 
-    # Strings shared by all layers: G code, X, Y, arc centre, E.
-    prev = np.empty_like(mv["end"])
-    prev[1:] = mv["end"][:-1]
-    prev[mv["first"]] = mv["start"]
-    is_arc = mv["kind"] != 1
-    code = np.array(["", "G1", "G2", "G3"], dtype=object)[mv["kind"]]
-    xs = format_fixed(mv["end"][:, 0], 3, " X")
-    ys = format_fixed(mv["end"][:, 1], 3, " Y")
-    xs[(mv["end"][:, 0] == prev[:, 0]) & ~is_arc] = ""
-    ys[(mv["end"][:, 1] == prev[:, 1]) & ~is_arc] = ""
-    base = code + xs + ys
-    tail = np.full(n_moves, "", dtype=object)
-    if is_arc.any():
-        i_s = format_fixed(mv["ij"][:, 0], 3, " I")
-        j_s = format_fixed(mv["ij"][:, 1], 3, " J")
-        i_s[mv["ij"][:, 0] == 0] = ""
-        j_s[mv["ij"][:, 1] == 0] = ""
-        tail[is_arc] = (i_s + j_s)[is_arc]
-    tail = tail + e_strings
-    th_prev = np.empty_like(mv["th"])
-    th_prev[1:] = mv["th"][:-1]
-    th_prev[mv["first"]] = mv["th"][mv["first"]]
-    z_shown = mv["th"] != th_prev
-    trace_ends = np.concatenate([mv["first"][1:], [n_moves]])
 
-    # Time estimate and header numbers.
-    acc = settings.acceleration_mm_s2
-    jd = settings.junction_deviation_mm
-    # Timed on the polyline before arc fitting (arcs change it negligibly).
-    t_first, length_mm = polyline_time_s(q / 1000.0, starts, settings.first_layer_mm_s, acc, jd)
-    t_rest = polyline_time_s(q / 1000.0, starts, settings.print_mm_s, acc, jd)[0]
-    travel_from = np.concatenate([[[0, 0]], mv["end"][trace_ends[:-1] - 1]]) / 1000.0
-    travel_to = mv["start"] / 1000.0
-    travel_len = np.hypot(*(travel_to - travel_from).T)
-    if layers > 1:
-        wrap = np.hypot(*(travel_to[0] - mv["end"][-1] / 1000.0))
-        travel_rest = travel_len.copy()
-        travel_rest[0] = wrap
-    else:
-        travel_rest = travel_len
-    v_tr = settings.travel_mm_s
-    t_travel = (trapezoid_s(travel_len, 0.0, 0.0, v_tr, acc).sum()
-                + (layers - 1) * trapezoid_s(travel_rest, 0.0, 0.0, v_tr, acc).sum())
-    z_speed = min(v_tr, MAX_Z_SPEED_MM_S)
-    t_retract = 2 * settings.retract_mm / settings.retract_mm_s if settings.retract_mm > 0 else 0
-    t_hop = 2 * settings.z_hop_mm / z_speed
-    t_total = (t_first + (layers - 1) * t_rest + t_travel
-               + n_traces * layers * (t_retract + t_hop))
-    filament_g = filament_mm * area / 1000.0 * settings.filament_density_g_cm3
-    # Arcs bulge at most the arc tolerance past their end points: ignored here.
-    xy_all = np.concatenate([mv["end"], mv["start"]]) / 1000.0
-    th_mm = th_um / 1000.0
-    stats = {
-        "lines": 0, "bytes": 0, "layers": layers,
-        "thickness_mm": {"min": float(th_mm.min()), "max": float(th_mm.max())},
-        "clamped_segments": int(clamped_segments),
-        "filament_mm": round(float(filament_mm), 3), "filament_g": round(float(filament_g), 3),
-        "estimated_print_s": round(float(t_total), 1), "bed_fits": True,
-        "travel_moves": n_traces * layers, "traces": n_traces, "segments": n_segments,
-        "extrusion_moves": n_moves * layers, "path_length_mm": round(length_mm, 3),
-        "moves_per_s": round(n_moves / max(length_mm / settings.print_mm_s, 1e-9), 1),
-    }
-    if settings.arc_tolerance_mm > 0:
-        stats["arcs"] = int(is_arc.sum()) * layers
-    lo_xy, hi_xy = xy_all.min(axis=0), xy_all.max(axis=0)
-    header = [
-        ";FLAVOR:Marlin",
-        ";TIME:%d" % round(t_total),
-        ";Filament used: %sm" % fmt(filament_mm / 1000.0, 5),
-        ";LAYER_COUNT:%d" % layers,
-        ";MINX:%s" % fmt(lo_xy[0]), ";MINY:%s" % fmt(lo_xy[1]),
-        ";MINZ:%s" % fmt(th_mm.min()),
-        ";MAXX:%s" % fmt(hi_xy[0]), ";MAXY:%s" % fmt(hi_xy[1]),
-        ";MAXZ:%s" % fmt(th_mm.max() * layers),
-        ";generated by hostd %s" % __version__,
-        "; job: %s" % _one_line(name),
-        "; profile: %s" % _one_line(settings.profile_name),
-        "; layers: %d, traces per layer: %d, thickness %s..%s mm, E %s" % (
-            layers, n_traces, fmt(th_mm.min()), fmt(th_mm.max()),
-            "relative" if settings.relative_e else "absolute"),
-        "; filament used [mm] = %.2f" % filament_mm,
-        "; filament used [cm3] = %.3f" % (filament_mm * area / 1000.0),
-        "; filament used [g] = %.3f" % filament_g,
-        "; estimated printing time (normal mode) = %s" % estimate_time_text(t_total),
-    ] + ["; " + _one_line(h) for h in header_extra]
-
-    def emit(sink):
-        sink.write("\n".join(header) + "\n")
-        if settings.start_gcode:
-            sink.write(settings.start_gcode.rstrip("\n") + "\n")
-        sink.write("G90\n%s\n" % ("M83" if settings.relative_e else "M82"))
-        state = {"retracted": settings.retract_mm > 0, "z": None, "f": None, "e": 0}
-        r_um5 = int(round(settings.retract_mm * 1e5))
-        f_travel = fmt(settings.travel_mm_s * 60, 1)
-        f_retract = fmt(settings.retract_mm_s * 60, 1)
-        f_z = fmt(z_speed * 60, 1)
-        hop_um = int(round(settings.z_hop_mm * 1000))
-
-        def feed(f):
-            if state["f"] == f:
-                return ""
-            state["f"] = f
-            return " F" + f
-
-        def e_move(target):
-            # target: E in 1e-5 mm, absolute within the layer (relative: a delta).
-            return "G1 E%s%s" % (format_fixed([target], 5)[0], feed(f_retract))
-
-        for layer in range(1, layers + 1):
-            f_print = fmt((settings.first_layer_mm_s if layer == 1 else settings.print_mm_s)
-                          * 60, 1)
-            out = [";LAYER_CHANGE", ";Z:%s" % fmt(th_mm.max() * layer),
-                   ";HEIGHT:%s" % fmt(th_mm.max()), ";LAYER:%d" % (layer - 1)]
-            if not settings.relative_e:
-                # E counts from 0 per layer; a retracted filament sits at -length.
-                out.append("G92 E%s" % (fmt(-settings.retract_mm, 5) if state["retracted"]
-                                        else "0"))
-                state["e"] = 0
-            sink.write("\n".join(out) + "\n")
-            z_um = mv["th"] * layer
-            zs = np.full(n_moves, "", dtype=object)
-            zs[z_shown] = format_fixed(z_um[z_shown], 3, " Z")
-            lines = base + zs + tail
-            for ti in range(n_traces):
-                a, b = int(mv["first"][ti]), int(trace_ends[ti])
-                blk = []
-                if labels is not None and labels[ti]:
-                    blk.append(";" + _one_line(labels[ti]))
-                z0 = int(z_um[a])
-                # Travel: retract, lift above both ends plus the hop, move, lower, unretract.
-                if not state["retracted"] and r_um5:
-                    blk.append(e_move(-r_um5 if settings.relative_e else state["e"] - r_um5))
-                    state["retracted"] = True
-                zc = state["z"]
-                lift = max(zc if zc is not None else z0, z0) + hop_um
-                if zc is None or lift != zc:
-                    blk.append("G0 Z%s%s" % (fmt(lift / 1000.0), feed(f_z)))
-                sx, sy = mv["start"][ti]
-                blk.append("G0 X%s Y%s%s" % (fmt(sx / 1000.0), fmt(sy / 1000.0), feed(f_travel)))
-                if lift != z0:
-                    blk.append("G0 Z%s%s" % (fmt(z0 / 1000.0), feed(f_z)))
-                if state["retracted"] and r_um5:
-                    blk.append(e_move(r_um5 if settings.relative_e else state["e"]))
-                    state["retracted"] = False
-                blk.append(";TYPE:SKIN")
-                state["f"] = f_print
-                first_line = lines[a] + " F" + f_print
-                sink.write("\n".join(blk) + "\n" + first_line + "\n")
-                if b > a + 1:
-                    sink.write("\n".join(lines[a + 1:b].tolist()) + "\n")
-                state["z"] = int(z_um[b - 1])
-                state["e"] = int(e_trace_end[ti])
-        if settings.end_gcode:
-            sink.write(settings.end_gcode.rstrip("\n") + "\n")
-        sink.write("; end of hostd job\n")
-
-    if isinstance(out, (str, os.PathLike)):
-        path = Path(out)
-        tmp = path.with_name(path.name + ".part")
-        try:
-            with open(tmp, "w", encoding="utf-8", newline="\n", buffering=1 << 20) as f:
-                sink = _Sink(f)
-                emit(sink)
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
-    else:
+def _write(out, emit_to):
+    """Run ``emit_to(sink)`` into ``out`` (a path, written whole or not at all, or a file
+    object); returns the :class:`_Sink` with its line and byte counts."""
+    if not isinstance(out, (str, os.PathLike)):
         sink = _Sink(out)
-        emit(sink)
-    stats["lines"] = sink.lines
-    stats["bytes"] = sink.bytes
-    if settings.arc_tolerance_mm > 0:
-        stats["lines_without_arcs"] = sink.lines + (n_segments - n_moves) * layers
-    return stats
+        emit_to(sink)
+        return sink
+    path = Path(out)
+    tmp = path.with_name(path.name + ".part")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="\n", buffering=1 << 20) as f:
+            sink = _Sink(f)
+            emit_to(sink)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return sink
 
 
-def _one_line(text):
-    return " ".join(str(text).split())

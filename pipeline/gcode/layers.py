@@ -1,0 +1,161 @@
+"""The body of a G-code file: every layer's moves as text, with the travel between traces.
+
+Strings are built per field with vectorised integer formatting
+(:mod:`pipeline.gcode.numfmt`) over all moves of a layer at once and shared by all
+layers (only Z differs); only the travel blocks between traces are built in a Python
+loop over traces.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.gcode.numfmt import fmt, format_fixed
+from pipeline.gcode.summary import one_line
+
+
+@dataclass
+class MoveText:
+    """One layer's move strings, shared by every layer.
+
+    base, tail : (m,) object, str: ``G1 X.. Y..`` and `` I.. J.. E..`` of each move;
+    z_shown : (m,) bool, moves whose thickness differs from the previous move's (they
+    carry Z); trace_ends : (t,) int, one past each trace's last move; e_trace_end : (t,)
+    int, E at each trace's end in 1e-5 mm; filament_mm : all layers' filament, mm.
+    """
+
+    base: np.ndarray
+    tail: np.ndarray
+    z_shown: np.ndarray
+    trace_ends: np.ndarray
+    e_trace_end: np.ndarray
+    filament_mm: float
+
+
+def text_of_moves(mv, settings):
+    """:class:`MoveText` of one layer's moves ``mv`` (see :mod:`pipeline.gcode.arcs`)."""
+    n_moves = len(mv["th"])
+    e_mm = mv["len"] * (mv["th"] / 1000.0) * settings.path_width_mm / settings.filament_area_mm2
+    e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
+    trace_ends = np.concatenate([mv["first"][1:], [n_moves]])
+    if settings.relative_e:
+        e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
+    else:
+        e_strings = format_fixed(e_cum, 5, " E")
+    prev = np.empty_like(mv["end"])
+    prev[1:] = mv["end"][:-1]
+    prev[mv["first"]] = mv["start"]
+    is_arc = mv["kind"] != 1
+    code = np.array(["", "G1", "G2", "G3"], dtype=object)[mv["kind"]]
+    xs = format_fixed(mv["end"][:, 0], 3, " X")
+    ys = format_fixed(mv["end"][:, 1], 3, " Y")
+    xs[(mv["end"][:, 0] == prev[:, 0]) & ~is_arc] = ""
+    ys[(mv["end"][:, 1] == prev[:, 1]) & ~is_arc] = ""
+    tail = np.full(n_moves, "", dtype=object)
+    if is_arc.any():
+        i_s = format_fixed(mv["ij"][:, 0], 3, " I")
+        j_s = format_fixed(mv["ij"][:, 1], 3, " J")
+        i_s[mv["ij"][:, 0] == 0] = ""
+        j_s[mv["ij"][:, 1] == 0] = ""
+        tail[is_arc] = (i_s + j_s)[is_arc]
+    th_prev = np.empty_like(mv["th"])
+    th_prev[1:] = mv["th"][:-1]
+    th_prev[mv["first"]] = mv["th"][mv["first"]]
+    return MoveText(base=code + xs + ys, tail=tail + e_strings, z_shown=mv["th"] != th_prev,
+                    trace_ends=trace_ends, e_trace_end=e_cum[trace_ends - 1],
+                    filament_mm=e_cum[-1] / 1e5 * settings.layers)
+
+
+def emit(sink, header, mv, th_max_mm, text, timing, settings, labels=None):
+    """Write the whole file to ``sink``: header, start G-code, every layer, end G-code.
+
+    th_max_mm : the thickest segment's layer thickness (the layers' nominal height)."""
+    sink.write("\n".join(header) + "\n")
+    if settings.start_gcode:
+        sink.write(settings.start_gcode.rstrip("\n") + "\n")
+    sink.write("G90\n%s\n" % ("M83" if settings.relative_e else "M82"))
+    travel = _Travel(settings, timing.z_speed_mm_s)
+    for layer in range(1, settings.layers + 1):
+        sink.write("\n".join(travel.layer_head(layer, th_max_mm)) + "\n")
+        _emit_layer(sink, layer, mv, text, travel, labels)
+    if settings.end_gcode:
+        sink.write(settings.end_gcode.rstrip("\n") + "\n")
+    sink.write("; end of hostd job\n")
+
+
+def _emit_layer(sink, layer, mv, text, travel, labels):
+    z_um = mv["th"] * layer
+    zs = np.full(len(z_um), "", dtype=object)
+    zs[text.z_shown] = format_fixed(z_um[text.z_shown], 3, " Z")
+    lines = text.base + zs + text.tail
+    f_print = travel.print_feed(layer)
+    for ti in range(len(text.trace_ends)):
+        a, b = int(mv["first"][ti]), int(text.trace_ends[ti])
+        blk = [";" + one_line(labels[ti])] if labels is not None and labels[ti] else []
+        blk += travel.to_trace(int(z_um[a]), mv["start"][ti])
+        blk.append(";TYPE:SKIN")
+        travel.f = f_print
+        sink.write("\n".join(blk) + "\n" + lines[a] + " F" + f_print + "\n")
+        if b > a + 1:
+            sink.write("\n".join(lines[a + 1:b].tolist()) + "\n")
+        travel.z = int(z_um[b - 1])
+        travel.e = int(text.e_trace_end[ti])
+
+
+class _Travel:
+    """The nozzle's state between traces (retracted, Z, feed rate, E) and the moves that
+    carry it from one trace's end to the next one's start."""
+
+    def __init__(self, settings, z_speed_mm_s):
+        self.s = settings
+        self.retracted = settings.retract_mm > 0
+        self.z = None
+        self.f = None
+        self.e = 0
+        self.r_um5 = int(round(settings.retract_mm * 1e5))
+        self.f_travel = fmt(settings.travel_mm_s * 60, 1)
+        self.f_retract = fmt(settings.retract_mm_s * 60, 1)
+        self.f_z = fmt(z_speed_mm_s * 60, 1)
+        self.hop_um = int(round(settings.z_hop_mm * 1000))
+
+    def print_feed(self, layer):
+        return fmt((self.s.first_layer_mm_s if layer == 1 else self.s.print_mm_s) * 60, 1)
+
+    def layer_head(self, layer, th_max_mm):
+        out = [";LAYER_CHANGE", ";Z:%s" % fmt(th_max_mm * layer),
+               ";HEIGHT:%s" % fmt(th_max_mm), ";LAYER:%d" % (layer - 1)]
+        if not self.s.relative_e:
+            # E counts from 0 per layer; a retracted filament sits at -length.
+            out.append("G92 E%s" % (fmt(-self.s.retract_mm, 5) if self.retracted else "0"))
+            self.e = 0
+        return out
+
+    def _feed(self, f):
+        if self.f == f:
+            return ""
+        self.f = f
+        return " F" + f
+
+    def _e_move(self, target):
+        # target: E in 1e-5 mm, absolute within the layer (relative: a delta).
+        return "G1 E%s%s" % (format_fixed([target], 5)[0], self._feed(self.f_retract))
+
+    def to_trace(self, z0, start_um):
+        """Retract, lift above both ends plus the hop, move, lower, unretract."""
+        blk = []
+        relative = self.s.relative_e
+        if not self.retracted and self.r_um5:
+            blk.append(self._e_move(-self.r_um5 if relative else self.e - self.r_um5))
+            self.retracted = True
+        zc = self.z
+        lift = max(zc if zc is not None else z0, z0) + self.hop_um
+        if zc is None or lift != zc:
+            blk.append("G0 Z%s%s" % (fmt(lift / 1000.0), self._feed(self.f_z)))
+        sx, sy = start_um
+        blk.append("G0 X%s Y%s%s" % (fmt(sx / 1000.0), fmt(sy / 1000.0), self._feed(self.f_travel)))
+        if lift != z0:
+            blk.append("G0 Z%s%s" % (fmt(z0 / 1000.0), self._feed(self.f_z)))
+        if self.retracted and self.r_um5:
+            blk.append(self._e_move(self.r_um5 if relative else self.e))
+            self.retracted = False
+        return blk
