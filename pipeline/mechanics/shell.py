@@ -1,0 +1,295 @@
+"""A thin shell with units: membrane and bending stiffness from the printed thickness.
+
+The paper's sheet model (:mod:`pipeline.mechanics.pd`) weighs an edge's strain by
+``1/l0`` and a hinge's bending by a dimensionless row, so the balance between
+stretching and bending moves with the mesh size: the simulated shape measures the
+mesh, not the sheet. Here both energies are integrals over the sheet, discretised
+so that they converge under refinement (Grinspun et al. 2003, "Discrete shells"):
+
+- membrane, per triangle: ``1/2 * h * A * |F - R|^2``, F the deformation gradient
+  from the triangle's rest shape to its 3-D shape and R the nearest matrix with
+  orthonormal columns (the stretch away from rest, ~ ``eps_1^2 + eps_2^2``);
+- bending, per interior edge: ``1/2 * (h^3 / 12) * 3 |e|^2 / (A_0 + A_1) *
+  (theta - theta_rest)^2``, theta the signed dihedral angle (0 flat).
+
+With Young's modulus 1 and Poisson's ratio 0 (the modulus cancels from the rest
+shape; the printed sheet's ratio is unknown and matters little against the
+factor h^2 / 12 = 0.19 mm^2 between the two for a 1.5 mm sheet). ``theta_rest``
+is the curvature a bilayer programs: 0 for equal layers.
+
+:class:`ShellSystem` has the interface :func:`pipeline.mechanics.pd.minimize_lbfgs`
+uses (``project``, ``gradient``, ``precondition``): the energy and its exact
+gradient, and as preconditioner the quadratic form of both energies at rest,
+factored once.
+"""
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+from pipeline.mechanics.constraints import _MIN_HINGE_ANGLE_DEG, topology
+
+# A triangle's rest shape is kept at least this fat (height over longest side),
+# so a sliver of the mesh gives a bounded, not an infinite, deformation gradient.
+_MIN_REST_HEIGHT = 1e-3
+# Rest areas in the bending weight are kept above this fraction of the median.
+_MIN_AREA_FRACTION = 0.05
+
+
+def rest_frames(rest_len):
+    """Rest triangles from their side lengths, in a frame of their own.
+
+    rest_len : (m, 3) float, mm, the side opposite each corner.
+    Returns (Dm_inv (m, 2, 2), area (m,) mm^2): the inverse of the matrix whose
+    columns are the rest sides corner 0 -> 1 and corner 0 -> 2.
+    """
+    a, b, c = (np.asarray(rest_len, dtype=float)[:, k] for k in range(3))
+    x = (b * b + c * c - a * a) / (2.0 * c)
+    longest = np.maximum(np.maximum(a, b), c)
+    y = np.maximum(np.sqrt(np.maximum(b * b - x * x, 0.0)), _MIN_REST_HEIGHT * longest)
+    det = c * y
+    inv = np.empty((len(a), 2, 2))
+    # Dm = [[c, x], [0, y]].
+    inv[:, 0, 0] = 1.0 / c
+    inv[:, 0, 1] = -x / det
+    inv[:, 1, 0] = 0.0
+    inv[:, 1, 1] = 1.0 / y
+    return inv, 0.5 * det
+
+
+def min_angle_deg(rest_len):
+    """Smallest corner angle of each rest triangle: (m,) degrees."""
+    l2 = np.asarray(rest_len, dtype=float) ** 2
+    num = l2[:, [1, 2, 0]] + l2[:, [2, 0, 1]] - l2
+    den = 2.0 * np.sqrt(l2[:, [1, 2, 0]] * l2[:, [2, 0, 1]])
+    return np.degrees(np.arccos(np.clip(num / np.maximum(den, 1e-300), -1.0, 1.0))).min(axis=1)
+
+
+def face_lengths(vertices, faces):
+    """Side lengths of each triangle, opposite each corner: (m, 3) float, mm."""
+    P = np.asarray(vertices, dtype=float)[faces]
+    return np.linalg.norm(P[:, [2, 0, 1]] - P[:, [1, 2, 0]], axis=2)
+
+
+class ShellSystem:
+    """Energy, gradient and preconditioner of a thin shell over ``faces``.
+
+    Parameters
+    ----------
+    faces : (m, 3) int
+    n : int, vertex count
+    rest_len : (m, 3) float, mm
+        Each triangle's rest side lengths (opposite corners 0, 1, 2). Neighbours
+        may disagree on a shared side (a metric no surface has): the energy
+        finds the best compromise.
+    thickness_mm : (m,) float
+        Printed thickness of each triangle.
+    theta_rest : (h,) float, rad, optional
+        Rest dihedral angle of each hinge (``topology(faces).hinges``), signed as
+        :func:`dihedral`; default 0 (bending toward flat).
+    closeness : float
+        Weight, relative to the preconditioner's mean diagonal, that removes its
+        translation null space.
+    """
+
+    def __init__(self, faces, n, rest_len, thickness_mm, theta_rest=None, closeness=1e-6):
+        self.top = top = topology(faces, n)
+        self.faces = top.faces
+        m = len(self.faces)
+        h = np.broadcast_to(np.asarray(thickness_mm, dtype=float), (m,))
+        self._rest_len = np.asarray(rest_len, dtype=float)
+        self.Dm_inv, self.rest_area = rest_frames(rest_len)
+        self.w_face = h * self.rest_area
+        # Corner coefficients: F = sum_k x_k C[f, k, :].
+        base = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
+        C = np.einsum("kc,fcd->fkd", base, self.Dm_inv)
+        self.C = C
+        self.Ck = [[np.ascontiguousarray(C[:, k, d]) for d in range(2)] for k in range(3)]
+        self.hinges = top.hinges
+        hf = top.hinge_faces
+        area = np.maximum(self.rest_area, _MIN_AREA_FRACTION * float(np.median(self.rest_area)))
+        self._e_len = e_len = self._hinge_rest_length(rest_len)
+        stiffness = 0.5 * (h[hf[:, 0]] ** 3 + h[hf[:, 1]] ** 3) / 12.0
+        self.k_hinge = stiffness * 3.0 * e_len ** 2 / (area[hf[:, 0]] + area[hf[:, 1]])
+        # A sliver's dihedral angle measures the mesher's rounding, not the sheet's
+        # curvature (its normal turns by 1/height per mm of noise): no bending there,
+        # as in the paper's model (pipeline.mechanics.constraints).
+        sliver = min_angle_deg(rest_len) < _MIN_HINGE_ANGLE_DEG
+        self.k_hinge[sliver[hf[:, 0]] | sliver[hf[:, 1]]] = 0.0
+        self.hinge_height = 2.0 * (area[hf[:, 0]] + area[hf[:, 1]]) / (3.0 * e_len)
+        self.theta_rest = (np.zeros(len(self.hinges)) if theta_rest is None
+                           else np.asarray(theta_rest, dtype=float))
+        self.lu, self.eps = self._factor(n, closeness)
+
+    def _side(self, rest_len, f, u, v):
+        """Rest length of side u-v of faces f ((k,) each): the side opposite the
+        corner that is neither u nor v."""
+        tri = self.faces[f]
+        corner = np.argmax((tri != u[:, None]) & (tri != v[:, None]), axis=1)
+        return np.asarray(rest_len, dtype=float)[f, corner]
+
+    def _hinge_rest_length(self, rest_len):
+        """Rest length of each hinge's edge: the mean of its two faces' values."""
+        hf, (v0, v1) = self.top.hinge_faces, self.hinges[:, :2].T
+        return 0.5 * (self._side(rest_len, hf[:, 0], v0, v1)
+                      + self._side(rest_len, hf[:, 1], v0, v1))
+
+    def _feet(self, rest_len):
+        """Where each hinge's opposite vertices project onto its edge at rest, as
+        the fraction of the way from v0 to v1: two (h,)."""
+        hf, (v0, v1, v2, v3) = self.top.hinge_faces, self.hinges.T
+        e2 = self._e_len ** 2
+        out = []
+        for f, w in ((hf[:, 0], v2), (hf[:, 1], v3)):
+            a2 = self._side(rest_len, f, v0, w) ** 2
+            b2 = self._side(rest_len, f, v1, w) ** 2
+            out.append((a2 + e2 - b2) / (2.0 * e2))
+        return out
+
+    def _factor(self, n, closeness):
+        """The preconditioner: membrane and bending quadratic forms at rest."""
+        m = len(self.faces)
+        rows = np.broadcast_to(np.arange(2 * m).reshape(m, 1, 2), (m, 3, 2))
+        cols = np.broadcast_to(self.faces[:, :, None], (m, 3, 2))
+        G = sp.csr_matrix((self.C.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * m, n))
+        W = sp.diags(np.repeat(self.w_face, 2))
+        # Bending near rest: theta ~ (unit hinge normal) . (dtheta/dx) x; a
+        # Laplacian-like row (x2 + x3 - x0 - x1 weighted) stands for it.
+        hb = self._hinge_rows_at_rest(n, *self._feet(self._rest_len))
+        M = (G.T @ W @ G + hb.T @ sp.diags(self.k_hinge) @ hb).tocsc()
+        eps = closeness * float(M.diagonal().mean())
+        M = M + eps * sp.identity(n, format="csc")
+        return splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                    options={"SymmetricMode": True}), eps
+
+    def _hinge_rows_at_rest(self, n, t2, t3):
+        """(h, n) rows whose value on a nearly flat sheet is the hinge's dihedral
+        angle (:func:`dihedral`'s gradient at rest, its normal component)."""
+        hi = self.hinges
+        # d theta / d (normal offset) of x2 and x3 is 1/height; the edge's ends share
+        # it by where x2 and x3 project onto the edge, so rigid motions give 0.
+        h0, h1 = self._opposite_heights()
+        g2, g3 = 1.0 / h0, 1.0 / h1
+        coef = np.stack([-(1 - t2) * g2 - (1 - t3) * g3, -t2 * g2 - t3 * g3, g2, g3], axis=1)
+        return sp.csr_matrix((coef.ravel(), (np.repeat(np.arange(len(hi)), 4), hi.ravel())),
+                             shape=(len(hi), n))
+
+    def _opposite_heights(self):
+        """Rest heights of each hinge's opposite vertices over its edge: two (h,) mm.
+
+        The true ones, slivers included: the energy's dihedral angle turns by
+        1/height per mm an opposite vertex moves, and a preconditioner that did
+        not know that would send every step far past a sliver's minimum."""
+        hf = self.top.hinge_faces
+        e_len = self._e_len
+        return (np.maximum(2.0 * self.rest_area[hf[:, 0]] / e_len, 1e-9),
+                np.maximum(2.0 * self.rest_area[hf[:, 1]] / e_len, 1e-9))
+
+    # ------------------------------------------------------------ energy
+
+    def project(self, X):
+        """Energy and gradient at ``X`` ((3, n) mm): (gradient (3, n), energy)."""
+        g = np.zeros_like(X)
+        e_m = self._membrane(X, g)
+        e_b = self._bending(X, g)
+        return g, e_m + e_b
+
+    def gradient(self, g, X):
+        """The gradient :meth:`project` computed at ``X``."""
+        return g
+
+    def precondition(self, G):
+        """The preconditioner (plus closeness) solved for ``G`` ((3, n)): (3, n)."""
+        return np.ascontiguousarray(self.lu.solve(np.ascontiguousarray(G).T).T)
+
+    def energy_terms(self, X):
+        """Membrane and bending energy at ``X`` ((3, n)): dict, N mm with E = 1 N/mm^2."""
+        g = np.zeros_like(X)
+        return {"membrane": self._membrane(X, g), "bending": self._bending(X, g)}
+
+    def _membrane(self, X, g):
+        # Component arrays throughout: F[d] is the (3, m) column d of every F.
+        P = [X[:, self.faces[:, k]] for k in range(3)]          # corner k: (3, m)
+        C = self.Ck
+        F = [P[0] * C[0][d] + P[1] * C[1][d] + P[2] * C[2][d] for d in range(2)]
+        R = nearest_orthonormal(F)
+        D = [(F[d] - R[d]) * self.w_face for d in range(2)]
+        e = 0.5 * float(((F[0] - R[0]) * D[0]).sum() + ((F[1] - R[1]) * D[1]).sum())
+        # dE/dx_k = w (F - R) C_k (R is the Euclidean projection: no term of its own).
+        n = X.shape[1]
+        idx = self.faces.T.ravel()
+        for i in range(3):
+            gk = np.concatenate([D[0][i] * C[k][0] + D[1][i] * C[k][1] for k in range(3)])
+            g[i] += np.bincount(idx, gk, n)
+        return e
+
+    def _bending(self, X, g):
+        theta, grads = dihedral(X.T, self.hinges, with_gradient=True)
+        r = theta - self.theta_rest
+        e = 0.5 * float(self.k_hinge @ (r * r))
+        _scatter(g, self.hinges, (self.k_hinge * r)[:, None, None] * grads)
+        return e
+
+
+def _scatter(g, idx, vals):
+    """g[:, idx[f, k]] += vals[f, k, :] for (d, n) g, (f, k) idx, (f, k, d) vals."""
+    flat = idx.ravel()
+    n = g.shape[1]
+    for d in range(g.shape[0]):
+        g[d] += np.bincount(flat, vals[:, :, d].ravel(), n)
+
+
+def nearest_orthonormal(F):
+    """The nearest matrices with orthonormal columns: ``F (F^T F)^(-1/2)``.
+
+    F : pair of (3, m) arrays, the two columns of m (3, 2) matrices; returns the
+    same. Closed form for the 2x2 square root; a collapsed triangle (rank < 2)
+    gets a regularised one.
+    """
+    f0, f1 = F
+    a = (f0 * f0).sum(axis=0)
+    b = (f0 * f1).sum(axis=0)
+    c = (f1 * f1).sum(axis=0)
+    tiny = 1e-12 * np.maximum(a + c, 1e-300)
+    a, c = a + tiny, c + tiny
+    s = np.sqrt(np.maximum(a * c - b * b, 0.0))
+    t = np.sqrt(a + c + 2.0 * s)
+    # sqrt(M) = (M + sqrt(det M) I) / t for a 2x2 SPD M; invert that 2x2.
+    p, q, r = (a + s) / t, b / t, (c + s) / t
+    det = np.maximum(p * r - q * q, 1e-300)
+    i00, i01, i11 = r / det, -q / det, p / det
+    return f0 * i00 + f1 * i01, f0 * i01 + f1 * i11
+
+
+def dihedral(V, hinges, with_gradient=False):
+    """Signed dihedral angle of each hinge: (h,) rad, 0 for a flat pair.
+
+    V : (n, 3) mm; hinges : (h, 4) int as :attr:`Topology.hinges` (edge v0 -> v1
+    in the face of v2, v1 -> v0 in the face of v3). Positive where the pair folds
+    away from the normal of its faces (a ridge seen from that side: a dome whose
+    faces face up); negative for a valley (the inside of a bowl).
+    With ``with_gradient``, also (h, 4, 3): d theta / d position of v0..v3.
+    """
+    x0, x1, x2, x3 = (V[hinges[:, k]] for k in range(4))
+    e = x1 - x0
+    n0 = np.cross(e, x2 - x0)
+    n1 = np.cross(x3 - x0, e)
+    el = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
+    ne0 = np.maximum(np.einsum("hi,hi->h", n0, n0), 1e-300)
+    ne1 = np.maximum(np.einsum("hi,hi->h", n1, n1), 1e-300)
+    cos = np.einsum("hi,hi->h", n0, n1)
+    sin = np.einsum("hi,hi->h", np.cross(n0, n1), e) / el
+    theta = np.arctan2(sin, cos)
+    if not with_gradient:
+        return theta
+    # Moving an opposite vertex along its face normal by its height turns the face
+    # by one radian; the edge's ends share the opposite vertices' pull by where
+    # those project onto the edge, so rigid motions leave theta unchanged.
+    g2 = -(el / ne0)[:, None] * n0
+    g3 = -(el / ne1)[:, None] * n1
+    el2 = el * el
+    t2 = np.einsum("hi,hi->h", x2 - x0, e) / el2
+    t3 = np.einsum("hi,hi->h", x3 - x0, e) / el2
+    g0 = -(1.0 - t2)[:, None] * g2 - (1.0 - t3)[:, None] * g3
+    g1 = -t2[:, None] * g2 - t3[:, None] * g3
+    return theta, np.stack([g0, g1, g2, g3], axis=1)

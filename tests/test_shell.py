@@ -1,0 +1,153 @@
+"""The thin-shell model: exact gradients, projections, rest states and programmed curvature."""
+
+import numpy as np
+import pytest
+from scipy.spatial import Delaunay
+
+from pipeline.mechanics.constraints import topology
+from pipeline.mechanics.pd import minimize_lbfgs
+from pipeline.mechanics.shell import (ShellSystem, dihedral, face_lengths, min_angle_deg,
+                                      nearest_orthonormal)
+
+
+def _sheet(nx=13, ny=7, size=(24.0, 12.0), jitter=0.0, seed=0):
+    """A flat, consistently oriented triangulation of a rectangle: (V (n, 3), faces)."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(0, size[0], nx), np.linspace(0, size[1], ny))
+    pts = np.c_[x.ravel(), y.ravel()]
+    inner = (pts[:, 0] > 0) & (pts[:, 0] < size[0]) & (pts[:, 1] > 0) & (pts[:, 1] < size[1])
+    pts[inner] += rng.uniform(-jitter, jitter, size=(inner.sum(), 2))
+    faces = Delaunay(pts).simplices
+    P = pts[faces]
+    cross = ((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+             - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    faces[cross < 0] = faces[cross < 0][:, [0, 2, 1]]
+    return np.c_[pts, np.zeros(len(pts))], faces
+
+
+def _numeric_gradient(f, X, h=1e-6):
+    g = np.zeros_like(X)
+    for idx in np.ndindex(*X.shape):
+        d = np.zeros_like(X)
+        d[idx] = h
+        g[idx] = (f(X + d) - f(X - d)) / (2 * h)
+    return g
+
+
+def test_dihedral_gradient_matches_finite_differences():
+    rng = np.random.default_rng(3)
+    H = np.array([[0, 1, 2, 3]])
+    for _ in range(5):
+        V = rng.normal(size=(4, 3))
+        _, g = dihedral(V, H, with_gradient=True)
+        num = _numeric_gradient(lambda W: dihedral(W, H)[0], V)
+        assert np.allclose(g[0], num, atol=1e-6 * np.abs(num).max())
+
+
+def test_dihedral_sign_tells_a_dome_from_a_bowl():
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0.0]])
+    H = np.array([[0, 1, 2, 3]])
+    assert dihedral(V, H)[0] == pytest.approx(0.0)
+    bowl = V.copy()
+    bowl[2:, 2] = 0.3
+    dome = V.copy()
+    dome[2:, 2] = -0.3
+    assert dihedral(bowl, H)[0] < 0 < dihedral(dome, H)[0]
+
+
+def test_nearest_orthonormal_is_the_polar_factor():
+    rng = np.random.default_rng(4)
+    F = rng.normal(size=(50, 3, 2))
+    R0, R1 = nearest_orthonormal([F[:, :, 0].T, F[:, :, 1].T])
+    R = np.stack([R0.T, R1.T], axis=2)
+    U, _, Vt = np.linalg.svd(F, full_matrices=False)
+    assert np.allclose(R, U @ Vt, atol=1e-9)
+
+
+def test_energy_gradient_is_exact():
+    V, faces = _sheet(jitter=0.4)
+    rng = np.random.default_rng(5)
+    rest = face_lengths(V, faces) * rng.uniform(0.7, 1.0, size=(len(faces), 1))
+    theta = rng.normal(scale=0.1, size=len(topology(faces).hinges))
+    S = ShellSystem(faces, len(V), rest, rng.uniform(0.5, 2.0, len(faces)), theta_rest=theta)
+    X = (V + rng.normal(scale=0.5, size=V.shape)).T.copy()
+    g, _ = S.project(X)
+    sub = np.s_[:, ::9]
+    num = np.zeros_like(X)
+    for idx in np.ndindex(*X[sub].shape):
+        i, j = idx[0], idx[1] * 9
+        d = np.zeros_like(X)
+        d[i, j] = 1e-6
+        num[i, j] = (S.project(X + d)[1] - S.project(X - d)[1]) / 2e-6
+    assert np.allclose(g[sub], num[sub], atol=1e-5 * np.abs(g).max())
+
+
+def test_a_sheet_at_its_rest_shape_has_no_energy_and_no_force():
+    V, faces = _sheet(jitter=0.4)
+    S = ShellSystem(faces, len(V), face_lengths(V, faces), 1.5)
+    g, E = S.project(V.T.copy())
+    assert E == pytest.approx(0.0, abs=1e-18)
+    assert np.abs(g).max() < 1e-9
+
+
+def test_bending_grows_with_the_cube_of_thickness_and_stretch_with_thickness():
+    V, faces = _sheet()
+    bent = V.copy()
+    bent[:, 2] = 0.02 * (bent[:, 0] - 12.0) ** 2      # a developable bend: no stretch to first order
+    stretched = V * np.array([1.05, 1.0, 1.0])        # 5 % in-plane stretch, no bend
+    terms = {}
+    for h in (1.0, 2.0):
+        S = ShellSystem(faces, len(V), face_lengths(V, faces), h)
+        terms[h] = (S.energy_terms(bent.T.copy())["bending"],
+                    S.energy_terms(stretched.T.copy())["membrane"])
+    assert terms[2.0][0] / terms[1.0][0] == pytest.approx(8.0, rel=1e-9)
+    assert terms[2.0][1] / terms[1.0][1] == pytest.approx(2.0, rel=1e-9)
+
+
+def test_slivers_carry_no_bending():
+    V, faces = _sheet()
+    rest = face_lengths(V, faces)
+    sliver = np.array([[1.0, 1.0, 1.9999]])           # corners of 0.6 degrees
+    assert min_angle_deg(sliver)[0] < 1.0 < min_angle_deg(rest).min()
+    rest[0] = sliver[0] * rest[0].max()
+    S = ShellSystem(faces, len(V), rest, 1.5)
+    hf = S.top.hinge_faces
+    touches = (hf == 0).any(axis=1)
+    assert touches.any() and np.all(S.k_hinge[touches] == 0) and np.all(S.k_hinge[~touches] > 0)
+
+
+@pytest.mark.parametrize("kappa", [0.0, 1.0 / 30.0])
+def test_a_strip_settles_to_its_programmed_curvature(kappa):
+    """A strip whose hinges rest at the dihedral angles of a cylinder of curvature kappa
+    rolls up to that cylinder from flat; with no programmed curvature it stays flat."""
+    V, faces = _sheet(nx=25, ny=5, size=(40.0, 6.0), jitter=0.2, seed=1)
+    hinges = topology(faces).hinges
+    if kappa:
+        phi = V[:, 0] * kappa
+        rolled = np.c_[np.sin(phi) / kappa, V[:, 1], (1 - np.cos(phi)) / kappa]
+    else:
+        rolled = V.copy()
+    S = ShellSystem(faces, len(V), face_lengths(V, faces), 1.0,
+                    theta_rest=dihedral(rolled, hinges))
+    X = V.T.copy()
+    X[2] += 1e-3 * np.sin(V[:, 0])                    # a nudge off the flat saddle point
+    X, _, _, converged = minimize_lbfgs(S, X, 2000, 1e-7)
+    P = X.T
+    assert converged
+    # The strip rolls about an axis along its width: fit one circle to all its points
+    # in the plane across that axis.
+    axis = np.linalg.svd(P - P.mean(axis=0))[2]
+    width = axis[np.argmax(np.abs(axis @ np.array([0.0, 1.0, 0.0])))]
+    u = np.cross(width, [0.0, 0.0, 1.0] if abs(width[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(width, u)
+    xz = np.c_[P @ u, P @ w]
+    A = np.c_[2 * xz, np.ones(len(xz))]
+    b = (xz ** 2).sum(axis=1)
+    cx, cz, c = np.linalg.lstsq(A, b, rcond=None)[0]
+    radius = np.sqrt(c + cx ** 2 + cz ** 2)
+    fitted = 1.0 / radius
+    if kappa:
+        assert fitted == pytest.approx(kappa, rel=0.05)
+    else:
+        assert np.ptp(P[:, 2]) < 1e-3
