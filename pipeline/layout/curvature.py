@@ -1,0 +1,160 @@
+"""Curvature programmed through the layers: a bilayer per triangle.
+
+A layout fixes each triangle's mean shrink (its metric). Printing the lower layers
+of the same paths with a larger shrink than the upper ones (thinner lower layers)
+adds a natural curvature along the path direction ``d``, as in a bimetal strip:
+``kappa = c * (sigma_bottom - sigma_top) / h`` (Timoshenko's bilayer gives c = 3/2
+for two equal layers of one material; the profile's calibration measures it).
+Positive kappa curls the sheet away from its lower side: a dome rising off the bed.
+
+The design here picks, per triangle, the target's normal curvature along ``d`` (from
+the smoothed height field's second derivatives, not from the mesh's dihedral angles,
+which near a steep rim or in a thin triangle measure the mesher's rounding), within
+what the shrink range allows around the triangle's mean shrink:
+``|sigma_bottom - sigma_top| <= 2 * min(sigma - s_min, s_max - sigma)``.
+Bending then pulls toward the target instead of toward flat, and the sign of the
+program decides which way each region rises in the bath.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt, gaussian_filter, map_coordinates
+
+from pipeline.geometry import hat_gradients
+from pipeline.mechanics.constraints import topology
+
+# Timoshenko's bilayer, equal thickness and modulus: kappa = 1.5 * delta_strain / h.
+BILAYER_C = 1.5
+
+
+@dataclass
+class CurvatureProgram:
+    """Per-triangle bilayer program and the rest dihedral angles it gives.
+
+    kappa : (m,) 1/mm, curvature along ``d`` (positive: rising off the bed)
+    delta_sigma : (m,) sigma_bottom - sigma_top
+    limited : (m,) bool, the shrink range cut the wanted curvature
+    theta_rest : (h,) rad, rest dihedral angle of each hinge (``topology(faces).hinges``)
+    """
+
+    kappa: np.ndarray
+    delta_sigma: np.ndarray
+    limited: np.ndarray
+    theta_rest: np.ndarray
+
+    def report(self):
+        """The report's ``curvature`` section."""
+        return {"limited_fraction": float(self.limited.mean()) if len(self.limited) else 0.0,
+                "delta_sigma": {"p05": float(np.percentile(self.delta_sigma, 5)),
+                                "p95": float(np.percentile(self.delta_sigma, 95)),
+                                "max_abs": float(np.abs(self.delta_sigma).max())}}
+
+
+def isoline_directions(xy, faces, vertex_level):
+    """Print direction of each triangle of an isoline layout: along the isolines,
+    i.e. across the gradient of the isoline height in the layout: (m, 2) unit."""
+    gphi, _ = hat_gradients(np.asarray(xy, dtype=float), faces)
+    grad = np.einsum("mi,mid->md", np.asarray(vertex_level, dtype=float)[faces], gphi)
+    d = np.stack([-grad[:, 1], grad[:, 0]], axis=1)
+    norm = np.linalg.norm(d, axis=1)
+    d[norm < 1e-12] = (1.0, 0.0)
+    norm[norm < 1e-12] = 1.0
+    return d / norm[:, None]
+
+
+def surface_derivatives(hf, smooth_mm=1.0):
+    """First and second derivatives of a height field, for sampling anywhere.
+
+    Returns a function ``(points (k, 2) mm) -> (fx, fy, fxx, fxy, fyy)``, each (k,).
+    Outside the footprint the field is continued by its nearest sample, so the
+    rim's derivatives are the surface's, not a cliff's.
+    """
+    z = np.asarray(hf.z, dtype=float)
+    inside = np.isfinite(z)
+    idx = distance_transform_edt(~inside, return_distances=False, return_indices=True)
+    z = z[tuple(idx)]
+    z = gaussian_filter(z, max(smooth_mm / hf.pixel_mm, 0.0), mode="nearest")
+    px = hf.pixel_mm
+    # Rows run south: d/dy = -d/drow.
+    z_r, z_c = np.gradient(z, px)
+    fx, fy = z_c, -z_r
+    fxx = np.gradient(fx, px, axis=1)
+    fxy = np.gradient(fx, px, axis=0) * -1.0
+    fyy = np.gradient(fy, px, axis=0) * -1.0
+    fields = (fx, fy, fxx, fxy, fyy)
+
+    def at(points):
+        r, c = hf.rc(np.asarray(points, dtype=float))
+        return tuple(map_coordinates(f, [r, c], order=1, mode="nearest") for f in fields)
+    return at
+
+
+def normal_curvature(derivs, points, direction):
+    """Normal curvature of the surface along a direction, positive for a dome.
+
+    derivs : from :func:`surface_derivatives`; points : (k, 2) mm; direction :
+    (k, 2), the direction's (x, y) components (its z follows the surface).
+    Returns (k,) 1/mm, ``-II(t, t) / I(t, t)`` with the upward normal.
+    """
+    fx, fy, fxx, fxy, fyy = derivs(points)
+    a, b = np.asarray(direction, dtype=float).T
+    first = a * a * (1 + fx * fx) + 2 * a * b * fx * fy + b * b * (1 + fy * fy)
+    second = (a * a * fxx + 2 * a * b * fxy + b * b * fyy) / np.sqrt(1 + fx * fx + fy * fy)
+    return -second / np.maximum(first, 1e-300)
+
+
+def isoline_tangents(derivs, points):
+    """Horizontal unit tangents of the isolines at ``points``: (k, 2)."""
+    fx, fy = derivs(points)[:2]
+    t = np.stack([-fy, fx], axis=1)
+    norm = np.linalg.norm(t, axis=1)
+    t[norm < 1e-12] = (1.0, 0.0)
+    return t / np.maximum(norm, 1e-12)[:, None]
+
+
+def program(kappa_target, faces, xy, direction, sigma, thickness_mm, s_min, s_max,
+            c=BILAYER_C):
+    """The bilayer program that brings the sheet's rest curvature closest to the target's.
+
+    kappa_target : (m,) 1/mm, the target's normal curvature along each triangle's
+    print direction (positive for a dome); faces : (m, 3); xy : (n, 2) mm, the
+    layout; direction : (m, 2) unit print direction in the layout; sigma : (m,)
+    mean shrink; thickness_mm : (m,). Returns :class:`CurvatureProgram`.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    top = topology(faces, len(xy))
+    sigma = np.asarray(sigma, dtype=float)
+    room = 2.0 * np.clip(np.minimum(sigma - s_min, s_max - sigma), 0.0, None)
+    h = np.asarray(thickness_mm, dtype=float)
+    k_max = c * room / h
+    kappa = np.asarray(kappa_target, dtype=float)
+    limited = np.abs(kappa) > k_max
+    kappa = np.clip(kappa, -k_max, k_max)
+    a = _hinge_response(xy, faces, top.hinges, top.hinge_faces, direction)
+    theta_rest = (a * kappa[top.hinge_faces]).sum(axis=1)
+    return CurvatureProgram(kappa=kappa, delta_sigma=kappa * h / c, limited=limited,
+                            theta_rest=theta_rest)
+
+
+def _hinge_response(xy, faces, hinges, hinge_faces, direction):
+    """Dihedral angle (rad) each hinge takes per unit curvature (1/mm) of each of its
+    two triangles along their print direction: (h, 2).
+
+    A curvature kappa along d bends a hinge whose edge has in-plane normal nu by
+    ``kappa (d . nu)^2`` per mm across it; across the hinge lie half of each
+    triangle's height over the edge, ``2 A / (3 |e|)`` from each centroid.
+    """
+    xy = np.asarray(xy, dtype=float)
+    e = xy[hinges[:, 1]] - xy[hinges[:, 0]]
+    length = np.maximum(np.linalg.norm(e, axis=1), 1e-12)
+    nu = np.stack([-e[:, 1], e[:, 0]], axis=1) / length[:, None]
+    P = xy[faces]
+    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    out = np.empty((len(hinges), 2))
+    for side in range(2):
+        f = hinge_faces[:, side]
+        cos = np.einsum("hc,hc->h", np.asarray(direction, dtype=float)[f], nu)
+        out[:, side] = cos * cos * 2.0 * area[f] / (3.0 * length)
+    return out

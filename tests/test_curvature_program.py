@@ -1,0 +1,53 @@
+"""The bilayer curvature program: the target's normal curvature, within the shrink range."""
+
+import numpy as np
+import pytest
+
+from pipeline.input import shapes
+from pipeline.layout import curvature
+
+
+def test_a_spherical_cap_has_one_over_its_radius_along_every_direction():
+    hf = shapes.dome(diameter_mm=100.0, height_mm=25.0)
+    radius = shapes.dome_radius_mm(100.0, 25.0)
+    der = curvature.surface_derivatives(hf)
+    rng = np.random.default_rng(0)
+    r = rng.uniform(0, 40, 200)
+    a = rng.uniform(0, 2 * np.pi, 200)
+    pts = np.c_[50 + r * np.cos(a), 50 + r * np.sin(a)]
+    for direction in (curvature.isoline_tangents(der, pts), rng.normal(size=(200, 2))):
+        k = curvature.normal_curvature(der, pts, direction)
+        assert np.allclose(k, 1.0 / radius, rtol=0.03)
+
+
+def test_a_bowl_is_negative_and_a_saddle_has_both_signs():
+    hf = shapes.dome(diameter_mm=100.0, height_mm=25.0)
+    bowl = type(hf)(z=np.nanmax(hf.z) - hf.z, pixel_mm=hf.pixel_mm)
+    der = curvature.surface_derivatives(bowl)
+    pts = np.array([[50.0, 50.0], [60.0, 45.0]])
+    assert np.all(curvature.normal_curvature(der, pts, [[1.0, 0.0], [0.0, 1.0]]) < 0)
+    y, x = np.mgrid[0:201, 0:201] * 0.5
+    saddle = type(hf)(z=((x - 50) ** 2 - (y - 50) ** 2) / 200.0 + 30.0, pixel_mm=0.5)
+    der = curvature.surface_derivatives(saddle)
+    k = curvature.normal_curvature(der, [[50.0, 50.0], [50.0, 50.0]], [[1.0, 0.0], [0.0, 1.0]])
+    assert k[0] == pytest.approx(-0.01, rel=0.02) and k[1] == pytest.approx(0.01, rel=0.02)
+
+
+def test_program_stays_within_the_shrink_range_and_says_where_it_was_cut():
+    xy = np.array([[0, 0], [10, 0], [0, 10], [10, 10.0]])
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    d = np.array([[1.0, 0.0], [1.0, 0.0]])
+    sigma = np.array([0.20, 0.33])           # room: 2 * min(0.2 - 0.0, 0.34 - 0.2) = 0.28; 0.02
+    prog = curvature.program([0.05, 0.05], faces, xy, d, sigma, [1.5, 1.5], 0.0, 0.34)
+    k_max = 1.5 * np.array([0.28, 0.02]) / 1.5
+    assert prog.kappa[0] == pytest.approx(0.05) and not prog.limited[0]
+    assert prog.kappa[1] == pytest.approx(k_max[1]) and prog.limited[1]
+    assert np.allclose(prog.delta_sigma, prog.kappa * 1.5 / curvature.BILAYER_C)
+    # The shared hinge (the diagonal) bends by both triangles' curvature across it.
+    assert prog.theta_rest.shape == (1,) and prog.theta_rest[0] > 0
+
+
+def test_the_isoline_direction_runs_across_the_height_gradient():
+    xy = np.array([[0, 0], [10, 0], [0, 10.0]])
+    d = curvature.isoline_directions(xy, np.array([[0, 1, 2]]), np.array([0.0, 0.0, 5.0]))
+    assert np.allclose(np.abs(d[0]), [1.0, 0.0])
