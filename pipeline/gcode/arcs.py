@@ -208,11 +208,11 @@ def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span):
     """Per-move arrays for a set of traces, arcs where they fit.
 
     ``q`` (n, 2) int um points, ``starts`` (t+1,) trace offsets, ``th_um``
-    (n - t,) int um thickness per segment, ``arc_vals`` per-segment values an
-    arc may not span by more than ``arc_span``.
+    (n - t, K) int um thickness per segment in each of K layer groups, ``arc_vals``
+    per-segment values an arc may not span by more than ``arc_span``.
 
     Returns dict of: ``end`` (m,2) int um, ``kind`` (m,) int8 (1 line, 2 cw, 3 ccw),
-    ``ij`` (m,2) int um, ``th`` (m,) int um, ``len`` (m,) float mm, ``first``
+    ``ij`` (m,2) int um, ``th`` (m, K) int um, ``len`` (m,) float mm, ``first``
     (t,) int index of each trace's first move, ``start`` (t,2) int um.
     """
     t = len(starts) - 1
@@ -241,10 +241,12 @@ def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span):
         d = pq[1:] - pq[:-1]
         seg_len = np.hypot(d[:, 0], d[:, 1]) / 1000.0
         cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-        cum_th = np.concatenate([[0.0], np.cumsum(seg_len * th)])
+        cum_th = np.concatenate([np.zeros((1, th.shape[1])),
+                                 np.cumsum(seg_len[:, None] * th, axis=0)])
         # An arc prints at its chords' length-weighted mean thickness (same volume).
-        mean_th = (cum_th[e_idx] - cum_th[prev]) / np.maximum(cum[e_idx] - cum[prev], 1e-12)
-        mth = np.where(nseg > 1, np.rint(mean_th), th[e_idx - 1]).astype(np.int64)
+        mean_th = ((cum_th[e_idx] - cum_th[prev])
+                   / np.maximum(cum[e_idx] - cum[prev], 1e-12)[:, None])
+        mth = np.where((nseg > 1)[:, None], np.rint(mean_th), th[e_idx - 1]).astype(np.int64)
         ij = np.zeros((len(e_idx), 2), np.int64)
         ij[is_arc] = np.rint(centre[is_arc] * 1000.0).astype(np.int64) - pq[prev[is_arc]]
         ln = cum[e_idx] - cum[prev]

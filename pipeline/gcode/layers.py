@@ -16,32 +16,26 @@ from pipeline.gcode.summary import one_line
 
 @dataclass
 class MoveText:
-    """One layer's move strings, shared by every layer.
+    """One layer's move strings, shared by every layer of a thickness group.
 
-    base, tail : (m,) object, str: ``G1 X.. Y..`` and `` I.. J.. E..`` of each move;
-    z_shown : (m,) bool, moves whose thickness differs from the previous move's (they
-    carry Z); trace_ends : (t,) int, one past each trace's last move; e_trace_end : (t,)
-    int, E at each trace's end in 1e-5 mm; filament_mm : all layers' filament, mm.
+    base : (m,) object, str: ``G1 X.. Y..`` of each move (every layer);
+    tails : K (m,) object arrays, `` I.. J.. E..`` of each move for each of the K
+    thickness columns of ``mv["th"]``; trace_ends : (t,) int, one past each trace's
+    last move; e_trace_end : K (t,) int, E at each trace's end in 1e-5 mm;
+    filament_mm : all layers' filament, mm.
     """
 
     base: np.ndarray
-    tail: np.ndarray
-    z_shown: np.ndarray
+    tails: list
     trace_ends: np.ndarray
-    e_trace_end: np.ndarray
+    e_trace_end: list
     filament_mm: float
 
 
 def text_of_moves(mv, settings):
     """:class:`MoveText` of one layer's moves ``mv`` (see :mod:`pipeline.gcode.arcs`)."""
-    n_moves = len(mv["th"])
-    e_mm = mv["len"] * (mv["th"] / 1000.0) * settings.path_width_mm / settings.filament_area_mm2
-    e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
+    n_moves = len(mv["len"])
     trace_ends = np.concatenate([mv["first"][1:], [n_moves]])
-    if settings.relative_e:
-        e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
-    else:
-        e_strings = format_fixed(e_cum, 5, " E")
     prev = np.empty_like(mv["end"])
     prev[1:] = mv["end"][:-1]
     prev[mv["first"]] = mv["start"]
@@ -51,32 +45,50 @@ def text_of_moves(mv, settings):
     ys = format_fixed(mv["end"][:, 1], 3, " Y")
     xs[(mv["end"][:, 0] == prev[:, 0]) & ~is_arc] = ""
     ys[(mv["end"][:, 1] == prev[:, 1]) & ~is_arc] = ""
-    tail = np.full(n_moves, "", dtype=object)
+    ij = np.full(n_moves, "", dtype=object)
     if is_arc.any():
         i_s = format_fixed(mv["ij"][:, 0], 3, " I")
         j_s = format_fixed(mv["ij"][:, 1], 3, " J")
         i_s[mv["ij"][:, 0] == 0] = ""
         j_s[mv["ij"][:, 1] == 0] = ""
-        tail[is_arc] = (i_s + j_s)[is_arc]
-    th_prev = np.empty_like(mv["th"])
-    th_prev[1:] = mv["th"][:-1]
-    th_prev[mv["first"]] = mv["th"][mv["first"]]
-    return MoveText(base=code + xs + ys, tail=tail + e_strings, z_shown=mv["th"] != th_prev,
-                    trace_ends=trace_ends, e_trace_end=e_cum[trace_ends - 1],
-                    filament_mm=e_cum[-1] / 1e5 * settings.layers)
+        ij[is_arc] = (i_s + j_s)[is_arc]
+    tails, e_ends, filament = [], [], 0.0
+    k = mv["th"].shape[1]
+    for col in range(k):
+        e_mm = (mv["len"] * (mv["th"][:, col] / 1000.0) * settings.path_width_mm
+                / settings.filament_area_mm2)
+        e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
+        if settings.relative_e:
+            e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
+        else:
+            e_strings = format_fixed(e_cum, 5, " E")
+        tails.append(ij + e_strings)
+        e_ends.append(e_cum[trace_ends - 1])
+        filament += e_cum[-1] / 1e5 * (settings.layers if k == 1 else 1)
+    return MoveText(base=code + xs + ys, tails=tails, trace_ends=trace_ends,
+                    e_trace_end=e_ends, filament_mm=filament)
 
 
-def emit(sink, header, mv, th_max_mm, text, timing, settings, labels=None):
-    """Write the whole file to ``sink``: header, start G-code, every layer, end G-code.
+def layer_z_um(th_um, layer):
+    """Nozzle height of every move in layer ``layer`` (1-based): the sum of the
+    thicknesses below and of its own, (m,) int um from (m, K) thicknesses."""
+    if th_um.shape[1] == 1:
+        return th_um[:, 0] * layer
+    return th_um[:, :layer].sum(axis=1)
 
-    th_max_mm : the thickest segment's layer thickness (the layers' nominal height)."""
+
+def emit(sink, header, mv, text, timing, settings, labels=None):
+    """Write the whole file to ``sink``: header, start G-code, every layer, end G-code."""
     sink.write("\n".join(header) + "\n")
     if settings.start_gcode:
         sink.write(settings.start_gcode.rstrip("\n") + "\n")
     sink.write("G90\n%s\n" % ("M83" if settings.relative_e else "M82"))
     travel = _Travel(settings, timing.z_speed_mm_s)
+    th = mv["th"]
     for layer in range(1, settings.layers + 1):
-        sink.write("\n".join(travel.layer_head(layer, th_max_mm)) + "\n")
+        col = min(layer, th.shape[1]) - 1
+        top_mm = layer_z_um(th, layer).max() / 1000.0
+        sink.write("\n".join(travel.layer_head(layer, top_mm, th[:, col].max() / 1000.0)) + "\n")
         _emit_layer(sink, layer, mv, text, travel, labels)
     if settings.end_gcode:
         sink.write(settings.end_gcode.rstrip("\n") + "\n")
@@ -84,10 +96,16 @@ def emit(sink, header, mv, th_max_mm, text, timing, settings, labels=None):
 
 
 def _emit_layer(sink, layer, mv, text, travel, labels):
-    z_um = mv["th"] * layer
+    col = min(layer, mv["th"].shape[1]) - 1
+    z_um = layer_z_um(mv["th"], layer)
+    # Z is written where it changes from the previous move of the same trace.
+    z_prev = np.empty_like(z_um)
+    z_prev[1:] = z_um[:-1]
+    z_prev[mv["first"]] = z_um[mv["first"]]
+    shown = z_um != z_prev
     zs = np.full(len(z_um), "", dtype=object)
-    zs[text.z_shown] = format_fixed(z_um[text.z_shown], 3, " Z")
-    lines = text.base + zs + text.tail
+    zs[shown] = format_fixed(z_um[shown], 3, " Z")
+    lines = text.base + zs + text.tails[col]
     f_print = travel.print_feed(layer)
     for ti in range(len(text.trace_ends)):
         a, b = int(mv["first"][ti]), int(text.trace_ends[ti])
@@ -99,7 +117,7 @@ def _emit_layer(sink, layer, mv, text, travel, labels):
         if b > a + 1:
             sink.write("\n".join(lines[a + 1:b].tolist()) + "\n")
         travel.z = int(z_um[b - 1])
-        travel.e = int(text.e_trace_end[ti])
+        travel.e = int(text.e_trace_end[col][ti])
 
 
 class _Travel:
@@ -121,9 +139,9 @@ class _Travel:
     def print_feed(self, layer):
         return fmt((self.s.first_layer_mm_s if layer == 1 else self.s.print_mm_s) * 60, 1)
 
-    def layer_head(self, layer, th_max_mm):
-        out = [";LAYER_CHANGE", ";Z:%s" % fmt(th_max_mm * layer),
-               ";HEIGHT:%s" % fmt(th_max_mm), ";LAYER:%d" % (layer - 1)]
+    def layer_head(self, layer, top_mm, height_mm):
+        out = [";LAYER_CHANGE", ";Z:%s" % fmt(top_mm),
+               ";HEIGHT:%s" % fmt(height_mm), ";LAYER:%d" % (layer - 1)]
         if not self.s.relative_e:
             # E counts from 0 per layer; a retracted filament sits at -length.
             out.append("G92 E%s" % (fmt(-self.s.retract_mm, 5) if self.retracted else "0"))

@@ -271,7 +271,9 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     """Write G-code for traces with a given layer thickness per segment.
 
     ``write_gcode`` without the shrink curve (calibration prints thicknesses
-    directly). ``labels`` (one str per trace, or None) become ``;`` comment
+    directly). A trace's thickness array is (k - 1,) for equal layers or
+    (k - 1, layers) for a thickness per layer; each layer's Z is then the sum of
+    the thicknesses below it. ``labels`` (one str per trace, or None) become ``;`` comment
     lines before each trace; ``arc_values`` (per segment, default the
     thickness) may span at most ``arc_value_span`` inside one arc. See
     :func:`write_gcode` for the other parameters and the returned stats.
@@ -282,17 +284,16 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
                         code="gcode.bad_input", fix="give one thickness array per trace")
     mv, q, starts, th_um, labels = _layer_moves(traces, thetas_mm, settings, center, labels,
                                                 arc_values, arc_value_span)
-    th_mm = th_um / 1000.0
+    th_mm = th_um / 1000.0                                    # (segments, K)
     text = text_of_moves(mv, settings)
     timing = estimate(q, starts, mv, text, settings)
     stats = summary(mv, q, starts, th_mm, text, timing, settings, clamped_segments)
     header = header_lines(mv, th_mm, text, timing, settings, name, header_extra)
-    sink = _write(out, lambda sink: emit(sink, header, mv, th_mm.max(), text, timing, settings,
-                                         labels))
+    sink = _write(out, lambda sink: emit(sink, header, mv, text, timing, settings, labels))
     stats["lines"] = sink.lines
     stats["bytes"] = sink.bytes
     if settings.arc_tolerance_mm > 0:
-        moves_saved = stats["segments"] - len(mv["th"])
+        moves_saved = stats["segments"] - len(mv["len"])
         stats["lines_without_arcs"] = sink.lines + moves_saved * settings.layers
     return stats
 
@@ -300,11 +301,12 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
 def _layer_moves(traces, thetas_mm, settings, center, labels, arc_values, arc_value_span):
     """One layer's moves: traces placed on the bed, quantised, thickness in whole um,
     runs of chords fitted by arcs. Returns ``(mv, q, starts, th_um, labels)`` (see
-    :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um per segment; labels of
-    kept traces)."""
+    :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um (segments, K) int, K
+    = 1 for equal layers, else one column per layer; labels of kept traces)."""
     if labels is not None:
         labels = [labels[i] for i in range(len(traces))]
-    arrays = [thetas_mm] + ([arc_values] if arc_values is not None else [])
+    columns = _layer_columns(thetas_mm, settings.layers)
+    arrays = columns + ([arc_values] if arc_values is not None else [])
     offset, over = bed_overhang(traces, settings.bed_mm, center=center)
     _check_bed(over, settings.bed_mm)
     q, starts, vals, kept = _prepare(traces, arrays, offset)
@@ -312,15 +314,33 @@ def _layer_moves(traces, thetas_mm, settings, center, labels, arc_values, arc_va
         labels = [labels[i] for i in kept]
     lo_um = int(math.ceil(settings.thickness_min_mm * 1000 - 1e-6))
     hi_um = int(math.floor(settings.thickness_max_mm * 1000 + 1e-6))
-    th_um = np.clip(np.rint(vals[0] * 1000.0), lo_um, hi_um).astype(np.int64)
-    arc_vals = vals[1] if arc_values is not None else th_um / 1000.0
-    top_um = int(th_um.max()) * settings.layers + int(round(settings.z_hop_mm * 1000))
+    k = len(columns)
+    th_um = np.clip(np.rint(np.stack(vals[:k], axis=1) * 1000.0), lo_um, hi_um).astype(np.int64)
+    arc_vals = vals[k] if arc_values is not None else th_um.mean(axis=1) / 1000.0
+    top_um = int(stack_height(th_um, settings.layers).max()) + int(round(settings.z_hop_mm * 1000))
     if top_um > settings.max_z_mm * 1000:
         raise PlanError("the part needs %.3f mm of Z but the printer has %g mm"
                         % (top_um / 1000, settings.max_z_mm), code="gcode.too_tall",
                         fix="use fewer layers or thinner layers")
     mv = moves_with_arcs(q, starts, th_um, arc_vals, settings.arc_tolerance_mm, arc_value_span)
     return mv, q, starts, th_um, labels
+
+
+def _layer_columns(thetas_mm, layers):
+    """Per-trace thickness arrays as K lists of per-trace columns (K = 1 or ``layers``)."""
+    arrs = [np.asarray(t, dtype=float) for t in thetas_mm]
+    k = max([a.shape[1] for a in arrs if a.ndim == 2] or [1])
+    if k not in (1, layers):
+        raise PlanError("thickness arrays have %d columns for %d layers" % (k, layers),
+                        code="gcode.bad_input", fix="give one column per layer, or one for all")
+    if k == 1:
+        return [[a.reshape(-1) for a in arrs]]
+    return [[(a[:, j] if a.ndim == 2 else a) for a in arrs] for j in range(k)]
+
+
+def stack_height(th_um, layers):
+    """Height of the whole stack over each segment: (segments,) from (segments, K)."""
+    return th_um[:, 0] * layers if th_um.shape[1] == 1 else th_um.sum(axis=1)
 
 
 def _write(out, emit_to):

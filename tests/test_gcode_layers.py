@@ -1,0 +1,62 @@
+"""G-code with a thickness per layer (a bilayer): each layer's Z is the sum of the
+thicknesses below it and its own, and each layer extrudes its own thickness."""
+
+import io
+
+import numpy as np
+import pytest
+
+from gcode_parser import parse
+from pipeline.errors import PlanError
+from pipeline.gcode.writer import GcodeSettings, write_thickness_gcode
+from pipeline.profiles.profile import load_profile
+
+PROFILE = load_profile("generic-0.5mm")
+
+
+def _job(columns, arcs=0.0):
+    """Three straight traces of 20 segments; thickness per segment and layer from
+    ``columns`` ((layers,) mm, the same along every trace)."""
+    settings = GcodeSettings.from_profile(PROFILE, layers=len(columns), arc_tolerance_mm=arcs)
+    traces = [np.c_[np.linspace(0, 20, 21), np.full(21, 1.0 + y)] for y in (0.0, 0.5, 1.0)]
+    thetas = [np.tile(np.asarray(columns, float), (20, 1)) for _ in traces]
+    buf = io.StringIO()
+    stats = write_thickness_gcode(traces, thetas, settings, buf, name="bilayer")
+    return parse(buf.getvalue()), stats, settings
+
+
+@pytest.mark.parametrize("arcs", [0.0, 0.02])
+def test_each_layer_sits_on_the_sum_of_the_thicknesses_below(arcs):
+    columns = [0.15, 0.15, 0.15, 0.30, 0.30, 0.30]
+    parsed, stats, s = _job(columns, arcs)
+    tops = np.cumsum(columns)
+    for layer in range(1, 7):
+        zs = {round(m.end[2], 3) for m in parsed.layer_moves(layer) if m.extruding}
+        assert zs == {round(tops[layer - 1], 3)}, (layer, zs)
+    # Each layer pushes the filament its own thickness needs: E = L * t * w / A.
+    area = s.filament_area_mm2
+    for layer in (1, 6):
+        e = sum(m.e for m in parsed.layer_moves(layer) if m.extruding)
+        want = 3 * 20.0 * columns[layer - 1] * s.path_width_mm / area
+        assert e == pytest.approx(want, rel=1e-3)
+    assert float(parsed.header["MAXZ"]) == pytest.approx(tops[-1])
+    assert stats["thickness_mm"] == {"min": 0.15, "max": 0.30}
+
+
+def test_equal_layers_given_per_layer_match_one_thickness_for_all():
+    parsed_a, stats_a, _ = _job([0.2] * 6)
+    settings = GcodeSettings.from_profile(PROFILE, layers=6)
+    traces = [np.c_[np.linspace(0, 20, 21), np.full(21, 1.0 + y)] for y in (0.0, 0.5, 1.0)]
+    buf = io.StringIO()
+    write_thickness_gcode(traces, [np.full(20, 0.2)] * 3, settings, buf, name="bilayer")
+    parsed_b = parse(buf.getvalue())
+    assert [(m.end, round(m.e, 5)) for m in parsed_a.moves] == \
+        [(m.end, round(m.e, 5)) for m in parsed_b.moves]
+
+
+def test_a_column_count_that_is_neither_one_nor_the_layers_is_refused():
+    settings = GcodeSettings.from_profile(PROFILE, layers=6)
+    with pytest.raises(PlanError) as err:
+        write_thickness_gcode([np.c_[[0.0, 1.0], [0.0, 0.0]]], [np.full((1, 4), 0.2)],
+                              settings, io.StringIO())
+    assert err.value.code == "gcode.bad_input"
