@@ -9,6 +9,10 @@ so that they converge under refinement (Grinspun et al. 2003, "Discrete shells")
 - membrane, per triangle: ``1/2 * h * A * |F - R|^2``, F the deformation gradient
   from the triangle's rest shape to its 3-D shape and R the nearest matrix with
   orthonormal columns (the stretch away from rest, ~ ``eps_1^2 + eps_2^2``);
+- a barrier against collapse, per triangle: ``ALPHA * h * A * (J - 1 - log J)``, J the
+  area over the rest area: zero at rest, growing without bound as a triangle collapses
+  (the stretch term alone lets a triangle flatten to a line at a finite cost, and a
+  collapsed triangle has no normal for the bending term to turn);
 - bending, per interior edge: ``1/2 * (h^3 / 12) * 3 |e|^2 / (A_0 + A_1) *
   (theta - theta_rest)^2``, theta the signed dihedral angle (0 flat).
 
@@ -34,6 +38,9 @@ from pipeline.mechanics.constraints import _MIN_HINGE_ANGLE_DEG, topology
 _MIN_REST_HEIGHT = 1e-3
 # Rest areas in the bending weight are kept above this fraction of the median.
 _MIN_AREA_FRACTION = 0.05
+# Weight of the collapse barrier relative to the stretch term: small, so that it
+# changes nothing while triangles keep their area to a few per cent.
+ALPHA = 0.1
 
 
 def rest_frames(rest_len):
@@ -216,10 +223,19 @@ class ShellSystem:
         D = [(F[d] - R[d]) * self.w_face for d in range(2)]
         e = 0.5 * float(((F[0] - R[0]) * D[0]).sum() + ((F[1] - R[1]) * D[1]).sum())
         # dE/dx_k = w (F - R) C_k (R is the Euclidean projection: no term of its own).
+        N = np.cross(P[1] - P[0], P[2] - P[0], axis=0)          # (3, m), twice the area
+        norm = np.maximum(np.sqrt((N * N).sum(axis=0)), 1e-300)
+        J = norm / (2.0 * self.rest_area)
+        wa = ALPHA * self.w_face
+        e += float((wa * (J - 1.0 - np.log(J))).sum())
+        # d|N|/dx_k = unit(N) x (x_{k+2} - x_{k+1}).
+        coef = wa * (1.0 - 1.0 / J) / (2.0 * self.rest_area) / norm
         n = X.shape[1]
         idx = self.faces.T.ravel()
+        dJ = [np.cross(N, P[(k + 2) % 3] - P[(k + 1) % 3], axis=0) * coef for k in range(3)]
         for i in range(3):
-            gk = np.concatenate([D[0][i] * C[k][0] + D[1][i] * C[k][1] for k in range(3)])
+            gk = np.concatenate([D[0][i] * C[k][0] + D[1][i] * C[k][1] + dJ[k][i]
+                                 for k in range(3)])
             g[i] += np.bincount(idx, gk, n)
         return e
 

@@ -74,7 +74,7 @@ def thickness_for(sigma_face, shrink, layers, lo_mm, hi_mm):
 
 
 def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None, pop=0.15,
-                   iterations=600, rest_tol=2e-5, callback=None, clamped=0):
+                   iterations=600, rest_tol=2e-5, callback=None, clamped=0, ramp=(1.0,)):
     """Let the flat sheet take its rest shapes and settle; compare with the target.
 
     Parameters
@@ -84,9 +84,13 @@ def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None,
     thickness_mm : (m,) printed thickness
     theta_rest : (h,) rad, optional, programmed rest dihedral angles
     pop : start bump as a fraction of the layout's diameter (0: start flat)
-    iterations : cap of L-BFGS iterations
+    iterations : cap of L-BFGS iterations, per ramp stage
     rest_tol : at rest when the sheet moved less than this times the layout's
         diameter (RMS) over ten iterations
+    ramp : fractions of the shrink (and programmed curvature) the sheet settles
+        under in turn, each from the last one's shape: the bath heats a sheet
+        gradually, and a sheet shrunk all at once from flat can buckle into a
+        state the gradual one never reaches
 
     Returns
     -------
@@ -96,13 +100,19 @@ def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None,
     V = np.asarray(vertices, dtype=float)
     faces = np.asarray(faces, dtype=np.int64)
     xy = np.asarray(xy, dtype=float)
-    system = ShellSystem(faces, len(V), rest_len, thickness_mm, theta_rest)
     diameter = float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0)))
     X = np.zeros((3, len(V)))
     X[:2] = xy.T
     X[2] = pop_profile(xy, topology(faces, len(V)), pop)
-    X, energy, it, converged = minimize_lbfgs(system, X, iterations, rest_tol * diameter,
-                                              callback=callback)
+    flat_len = face_lengths(np.c_[xy, np.zeros(len(xy))], faces)
+    energy, it = [], 0
+    for t in ramp:
+        system = ShellSystem(faces, len(V), flat_len + t * (np.asarray(rest_len) - flat_len),
+                             thickness_mm, theta_rest)
+        X, e, i, converged = minimize_lbfgs(system, X, iterations, rest_tol * diameter,
+                                            callback=callback)
+        energy += e
+        it += i
     P = X.T
     aligned, disp = align(P, V)
     mirrored = False
