@@ -24,12 +24,14 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import figures  # noqa: E402  (benchmarks/ is a folder of scripts, not a package)
 TERRAIN = ROOT.parent / "shared" / "data" / "terrain"
 ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 TARGETS = {
     "flatten_20k_s": 1.5, "flatten_200k_s": 20.0,
-    "plan_issue3_stages_175mm_s": 10.0, "plan_175mm_total_s": 15.0, "plan_peak_rss_mb": 1024,
+    "plan_load_to_simulation_175mm_s": 10.0, "plan_175mm_total_s": 15.0, "plan_peak_rss_mb": 1024,
 }
 
 
@@ -74,13 +76,13 @@ plan = planner.run(path, prof, outdir)
 wall = time.perf_counter() - t
 r = plan.report
 ts = r["timing_s"]
-issue3 = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
+to_sim = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
 every = ts["total"] + ts.get("gcode", 0.0) + ts.get("texture", 0.0)
 g = r["gcode"]
 print(json.dumps({
     "input": r["input"], "longest_diameter_mm": round(r["heightfield"]["longest_diameter_mm"], 1),
     "working_shape": r["heightfield"].get("working_shape"),
-    "triangles": r["mesh"]["triangles"], "timing_s": ts, "issue3_stages_s": round(issue3, 3),
+    "triangles": r["mesh"]["triangles"], "timing_s": ts, "load_to_simulation_s": round(to_sim, 3),
     "all_stages_s": round(every, 3),
     "wall_s": round(wall, 3),
     "invalid_edge_fraction": round(r["flatten"]["invalid_edge_fraction"], 4),
@@ -151,7 +153,7 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
                 out[name]["repeats"] = {
                     key: {"runs": [r[key] for r in runs],
                           "median": round(statistics.median(r[key] for r in runs), 3)}
-                    for key in ("issue3_stages_s", "all_stages_s", "wall_s")}
+                    for key in ("load_to_simulation_s", "all_stages_s", "wall_s")}
     return out
 
 
@@ -168,20 +170,30 @@ def bench_terrain():
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map"])
+    ap.add_argument("--models", help="comma-separated reference shapes for the plan group")
+    ap.add_argument("--no-save", action="store_true",
+                    help="print only; keep benchmarks/results and docs/figures.md as they are")
     args = ap.parse_args()
     t0 = time.time()
+    plan_kw = {"names": tuple(args.models.split(","))} if args.models else {}
     result = {"machine": {"cpu_count": os.cpu_count(), "python": sys.version.split()[0],
                           "single_core": True}, "targets": TARGETS}
     if args.only in (None, "flatten"):
         result["flatten"] = bench_flatten()
     if args.only in (None, "plan"):
-        result["plan"] = bench_plan()
+        result["plan"] = bench_plan(**plan_kw)
     if args.only in (None, "terrain"):
         result["terrain"] = bench_terrain()
     if args.only in (None, "fine_map"):
         result["fine_map"] = bench_fine_map()
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
+    if not args.no_save:
+        cond = figures.conditions()
+        for group in ("flatten", "plan", "terrain", "fine_map"):
+            if group in result:
+                figures.save(group, result[group], cond)
+        figures.write()
 
 
 if __name__ == "__main__":

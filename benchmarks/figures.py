@@ -1,0 +1,232 @@
+"""The figures of the current code, written from the benchmarks' JSON, never typed.
+
+Each benchmark group saves what it measured, with the conditions it ran under, to
+``benchmarks/results/GROUP.json`` (:func:`save`); :func:`write` renders every saved
+group into ``docs/figures.md`` and the headline rows into the block of ``README.md``
+between ``<!-- figures:begin -->`` and ``<!-- figures:end -->``.
+
+    python benchmarks/figures.py          # re-render from the saved results
+"""
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+BEGIN, END = "<!-- figures:begin -->", "<!-- figures:end -->"
+
+# Whole-plan columns: header, how to read it from a model's result (None: leave blank).
+# Columns whose every cell is blank are left out, so keys a method adds show when present.
+PLAN_COLUMNS = [
+    ("model", lambda n, r: n),
+    ("method", lambda n, r: r.get("method")),
+    ("LD mm", lambda n, r: _f(r.get("longest_diameter_mm"), 0)),
+    ("triangles", lambda n, r: _k(r.get("triangles"))),
+    ("invalid edges", lambda n, r: _pct(r.get("invalid_edge_fraction"))),
+    ("invalid area", lambda n, r: _pct(r.get("invalid_area_fraction"))),
+    ("sim. displacement", lambda n, r: _disp(r)),
+    ("at rest", lambda n, r: _rest(r)),
+    ("traces", lambda n, r: r.get("traces")),
+    ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
+    ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
+    ("direction p95 deg", lambda n, r: _f((r.get("direction_angle_deg") or {}).get("p95"), 1)),
+    ("load to simulation s", lambda n, r: _median(r, "load_to_simulation_s")),
+    ("all stages s", lambda n, r: _median(r, "all_stages_s")),
+    ("wall s", lambda n, r: _median(r, "wall_s")),
+    ("peak RSS MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
+    ("G-code lines", lambda n, r: _k(r.get("gcode_lines"))),
+    ("moves/s", lambda n, r: _f(r.get("moves_per_s"), 0)),
+    ("link moves/s", lambda n, r: _f(r.get("link_moves_per_s"), 0)),
+]
+HEADLINE = ("dome", "vancouver_island_south", "coast_mountains_bc")
+
+
+def conditions():
+    """Where and how a benchmark ran: dict of plain values."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    versions = {}
+    for mod in ("numpy", "scipy"):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except ImportError:
+            pass
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                                capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": sys.version.split()[0],
+            "versions": versions, "commit": commit or "unknown",
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "load_average": [round(x, 2) for x in os.getloadavg()],
+            "single_core": True}
+
+
+def save(group, data, cond=None, folder=RESULTS):
+    """Keep one group's results with their conditions: ``folder/GROUP.json``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    doc = {"group": group, "conditions": cond or conditions(), "results": data}
+    (folder / (group + ".json")).write_text(json.dumps(doc, indent=1, sort_keys=True) + "\n")
+
+
+def load(folder=RESULTS):
+    """Every saved group: dict group -> {"conditions", "results"}."""
+    out = {}
+    for path in sorted(Path(folder).glob("*.json")):
+        doc = json.loads(path.read_text())
+        out[doc["group"]] = doc
+    return out
+
+
+def write(folder=RESULTS, figures=ROOT / "docs" / "figures.md", readme=ROOT / "README.md"):
+    """Render ``figures`` from the saved results and the README's headline block."""
+    groups = load(folder)
+    Path(figures).write_text(render(groups))
+    readme = Path(readme)
+    if readme.exists():
+        readme.write_text(replace_block(readme.read_text(), headline(groups)))
+
+
+def render(groups):
+    """docs/figures.md text for ``groups`` (see :func:`load`)."""
+    out = ["# Figures", "",
+           "Written by `benchmarks/` from their results (`benchmarks/results/*.json`); "
+           "re-run a benchmark to renew its section. Times are on one core (BLAS threads 1) "
+           "unless a section says otherwise; \"at rest\" counts L-BFGS iterations of the "
+           "forward simulation (coarse sheet + full mesh).", ""]
+    models = {}
+    for name in ("plan", "terrain", "fine_map"):
+        for model, r in _models(groups.get(name, {}).get("results", {})).items():
+            models[model] = r
+    if models:
+        out += ["## Whole plan (`benchmarks/pipeline.py`)", "", *_table(models), ""]
+        out += _conditions(groups, ("plan", "terrain", "fine_map"))
+    flat = groups.get("flatten", {}).get("results", {})
+    if flat:
+        out += ["## Flattening scaling (`benchmarks/pipeline.py --only flatten`)", "",
+                "| triangles | flatten s | peak RSS MB |", "|---|---|---|"]
+        for r in flat.values():
+            if isinstance(r, dict) and "triangles" in r:
+                out.append("| %s | %s | %s |" % (_k(r["triangles"]), r.get("flatten_s"),
+                                                 _f(r.get("peak_rss_mb"), 0)))
+        out += [""] + _conditions(groups, ("flatten",))
+    return "\n".join(out).rstrip() + "\n"
+
+
+def headline(groups):
+    """The README's rows: the headline models, with a link to the rest."""
+    models = {}
+    for name in ("plan", "terrain"):
+        for model, r in _models(groups.get(name, {}).get("results", {})).items():
+            if model.split(" ")[0] in HEADLINE:
+                models[model] = r
+    if not models:
+        return "No benchmark has been run yet: `python benchmarks/pipeline.py`."
+    cond = next((groups[g]["conditions"] for g in ("plan", "terrain") if g in groups), {})
+    return "\n".join(_table(models, brief=True) + [
+        "", "%s, one core, commit %s, %s. Every figure, with its conditions: "
+        "[docs/figures.md](docs/figures.md)." % (cond.get("cpu", "?"), cond.get("commit", "?"),
+                                                  cond.get("date", "?"))])
+
+
+def replace_block(text, body):
+    """``text`` with the figures block's body replaced (appended if it has none)."""
+    if BEGIN in text and END in text:
+        head, rest = text.split(BEGIN, 1)
+        _, tail = rest.split(END, 1)
+        return head + BEGIN + "\n" + body + "\n" + END + tail
+    return text.rstrip("\n") + "\n\n" + BEGIN + "\n" + body + "\n" + END + "\n"
+
+
+def _models(results):
+    """Flatten a group's results to {model label: result}, skipping errors; a model
+    planned by several methods gives one row per method."""
+    out = {}
+    for model, r in results.items():
+        if not isinstance(r, dict) or "error" in r or "skipped" in r:
+            continue
+        if "methods" in r:
+            for method, rm in r["methods"].items():
+                if isinstance(rm, dict) and "error" not in rm:
+                    out["%s (%s)" % (model, method)] = dict(rm, method=method)
+        else:
+            out[model] = r
+    return out
+
+
+def _table(models, brief=False):
+    keep = {"model", "method", "LD mm", "invalid edges", "invalid area", "sim. displacement",
+            "traces", "coverage", "all stages s", "peak RSS MB", "moves/s", "link moves/s"}
+    cols = [(h, f) for h, f in PLAN_COLUMNS if not brief or h in keep]
+    cells = {name: [f(name, r) for _, f in cols] for name, r in models.items()}
+    used = [i for i in range(len(cols)) if any(c[i] not in (None, "") for c in cells.values())]
+    lines = ["| " + " | ".join(cols[i][0] for i in used) + " |",
+             "|" + "---|" * len(used)]
+    for row in cells.values():
+        lines.append("| " + " | ".join("" if row[i] is None else str(row[i]) for i in used) + " |")
+    return lines
+
+
+def _conditions(groups, names):
+    out = []
+    for name in names:
+        c = groups.get(name, {}).get("conditions")
+        if c:
+            v = ", ".join("%s %s" % kv for kv in sorted(c.get("versions", {}).items()))
+            out.append("*%s*: %s, %s cores, Python %s, %s; commit %s, %s, load average %s." % (
+                name, c.get("cpu"), c.get("cores"), c.get("python"), v, c.get("commit"),
+                c.get("date"), " / ".join(str(x) for x in c.get("load_average", []))))
+    return out + [""] if out else []
+
+
+def _f(v, digits):
+    return None if v is None else ("%.*f" % (digits, v))
+
+
+def _k(v):
+    return None if v is None else ("%.0fk" % (v / 1000) if v >= 10000 else str(v))
+
+
+def _pct(v):
+    return None if v is None else "%.1f %%" % (100 * v)
+
+
+def _disp(r):
+    mm, pct = r.get("mean_displacement_mm"), r.get("mean_displacement_pct_of_diameter")
+    return None if mm is None else "%.2f mm (%.2f %%)" % (mm, pct)
+
+
+def _rest(r):
+    if "simulation_converged" not in r:
+        return None
+    return "%s (%s + %s)" % ("yes" if r["simulation_converged"] else "no",
+                             r.get("coarse_iterations", 0),
+                             r.get("simulation_iterations", 0) - r.get("coarse_iterations", 0))
+
+
+def _spacing(s):
+    return None if not s else "%.3f-%.3f" % (s["p05"], s["p95"])
+
+
+def _median(r, key):
+    rep = (r.get("repeats") or {}).get(key)
+    if rep:
+        return "%.1f (%s)" % (rep["median"], ", ".join("%.1f" % x for x in rep["runs"]))
+    return _f(r.get(key), 1)
+
+
+if __name__ == "__main__":
+    write()

@@ -1,0 +1,45 @@
+"""docs/figures.md and the README's figures block are written from benchmark results."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import figures  # noqa: E402
+
+COND = {"cpu": "Test CPU", "cores": 2, "python": "3.11.7", "versions": {"numpy": "2.0"},
+        "commit": "abc1234", "date": "2026-01-01 00:00 UTC", "load_average": [0.5, 0.4, 0.3]}
+DOME = {"longest_diameter_mm": 175.0, "triangles": 88000, "invalid_edge_fraction": 0.0,
+        "mean_displacement_mm": 0.07, "mean_displacement_pct_of_diameter": 0.04,
+        "simulation_converged": True, "simulation_iterations": 225, "coarse_iterations": 176,
+        "traces": 1, "spacing_mm": {"p05": 0.479, "p50": 0.48, "p95": 0.482}, "coverage": 0.993,
+        "load_to_simulation_s": 8.4, "all_stages_s": 10.1, "wall_s": 12.8, "peak_rss_mb": 411,
+        "gcode_lines": 261000, "moves_per_s": 39.0,
+        "repeats": {"all_stages_s": {"runs": [10.1, 10.8, 10.0], "median": 10.1}}}
+
+
+def test_the_table_is_written_from_the_results_and_new_keys_show_when_present(tmp_path):
+    res = tmp_path / "results"
+    figures.save("plan", {"dome": DOME, "broken": {"error": "boom"}}, COND, folder=res)
+    text = figures.render(figures.load(res))
+    assert "| dome |" in text and "0.04 %" in text and "10.1 (10.1, 10.8, 10.0)" in text
+    assert "broken" not in text and "invalid area" not in text
+    assert "Test CPU" in text and "abc1234" in text
+    free = dict(DOME, invalid_area_fraction=0.012, link_moves_per_s=199.0)
+    figures.save("plan", {"dome": {"methods": {"isoline": DOME, "free": free}}}, COND, folder=res)
+    text = figures.render(figures.load(res))
+    assert "| dome (isoline) | isoline |" in text and "| dome (free) | free |" in text
+    assert "invalid area" in text and "1.2 %" in text and "199" in text
+
+
+def test_only_the_readme_block_is_replaced(tmp_path):
+    res = tmp_path / "results"
+    figures.save("plan", {"dome": DOME, "starfish": DOME}, COND, folder=res)
+    readme = tmp_path / "README.md"
+    readme.write_text("# hostd\n\nintro\n\n%s\nold numbers\n%s\n\n## After\ntext\n"
+                      % (figures.BEGIN, figures.END))
+    figures.write(res, tmp_path / "figures.md", readme)
+    text = readme.read_text()
+    assert text.startswith("# hostd\n\nintro\n\n") and text.endswith("\n## After\ntext\n")
+    assert "old numbers" not in text and "| dome |" in text and "starfish" not in text
+    assert "docs/figures.md" in text
+    assert "| starfish |" in (tmp_path / "figures.md").read_text()
