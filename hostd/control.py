@@ -82,7 +82,34 @@ class ControlMixin:
         self.store.set_state(job["id"], J.QUEUED, "requeued by a person", input_path=str(dest),
                              sidecar_path=str(side) if side else None, error=None,
                              error_code=None, copies_done=0, progress=0.0, finished_at=None)
+        # The sidecar may have changed (a profile, copies, priority): read it again, as
+        # intake does, so the job is planned with what the file now says.
+        problem = self._retarget(self.store.get(job["id"]), side)
+        if problem:
+            return "not requeued: %s" % problem
         return "requeued %s" % job["id"]
+
+    def _retarget(self, job, side):
+        """Re-read ``job``'s sidecar and take its profile, copies and priority; a sidecar
+        that is wrong, or names a profile no printer here uses, fails the job again.
+        Returns the reason it failed, or None."""
+        from pipeline.errors import PipelineError
+        from pipeline.input.sidecar import load_sidecar
+        try:
+            sidecar = load_sidecar(side) if side else None
+        except PipelineError as exc:
+            self._fail(job, exc.text(), exc.code)
+            return exc.text()
+        profile = self._profile_for(job["target"], sidecar)
+        self.store.update(job["id"], profile=profile,
+                          priority=sidecar.priority if sidecar else 0,
+                          copies=sidecar.copies if sidecar else 1)
+        job = self.store.get(job["id"])
+        if not any(self._eligible(s, job) for s in self.slots):
+            reason = self._no_printer_text(profile, job["target"])
+            self._fail(job, reason, "job.no_printer")
+            return reason
+        return None
 
     def _do_pause(self, name):
         slot = self._slot(name)
@@ -96,7 +123,8 @@ class ControlMixin:
     def _do_resume(self, name):
         slot = self._slot(name)
         slot.paused = False
-        self.store.set_printer(name, paused=0)
+        slot.held = None
+        self.store.set_printer(name, paused=0, held=None)
         if slot.job_id is not None:
             slot.printer.resume()
             self.store.event(slot.job_id, "resumed", "resumed by a person")

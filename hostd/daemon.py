@@ -77,8 +77,13 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         shutil.rmtree(c.spool_dir, ignore_errors=True)
         self.farm.setup()
         self._recover()
+        rows = self.store.printers()
         for slot in self.slots:
-            self.store.set_printer(slot.name, state="connecting", paused=0, job_id=None)
+            # A hold outlives a restart: the failed print is still on that bed.
+            slot.held = rows.get(slot.name, {}).get("held")
+            slot.paused = slot.held is not None
+            self.store.set_printer(slot.name, state="connecting", paused=int(slot.paused),
+                                   job_id=None)
             slot.connect_async()
         if damaged is not None:
             self._hold_after_damage(damaged, verdict)
@@ -187,6 +192,12 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             if len(self.plans) >= self.config.planning.workers:
                 return
             if job["id"] in self.plans:   # started while its state could not be recorded
+                continue
+            if not any(self._eligible(s, job) for s in self.slots):
+                # Only the profiles this node's printers use are ever read: a job's
+                # profile comes from a sidecar anyone with the drop folder can write.
+                self._fail(job, self._no_printer_text(job["profile"], job["target"]),
+                           "job.no_printer")
                 continue
             try:
                 digest = job["input_hash"] or file_hash(job["input_path"])
@@ -359,10 +370,19 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                 job["name"], snap["error"] or "cancelled by a person (hostd cancel)")
             log.info("job %s: %s", job["id"], reason)
             return self._filing(job, reason, state=J.CANCELLED)
-        return self._failing(job, "The printer %s stopped the print: %s. Check the printer, "
-                                  "then `hostd requeue %s`." % (slot.name, snap["error"] or
-                                                                slot.printer.last_error, job["id"]),
-                             "printer.error")
+        error = snap["error"] or slot.printer.last_error
+        self._hold(slot, "the print of %s ended abnormally (%s)" % (job["name"], error))
+        return self._failing(job, "The printer %s stopped the print: %s. The printer is held: "
+                                  "clear the bed, resume the printer, then `hostd requeue %s`."
+                             % (slot.name, error, job["id"]), "printer.error")
+
+    def _hold(self, slot, reason):
+        """Start nothing on ``slot`` until a person has looked at its bed and resumed it."""
+        slot.paused = True
+        slot.held = reason + ": clear the bed, then resume the printer"
+        with self._full_ok():
+            self.store.set_printer(slot.name, paused=1, held=slot.held)
+        log.warning("printer %s held: %s", slot.name, slot.held)
 
     def _interrupt(self, slot, reason):
         job = self.store.get(slot.job_id)
@@ -371,6 +391,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self._unspool(slot.job_id)
         slot.job_id, slot.link_job = None, None
         self.store.update(job["id"], last_line=line)
+        self._hold(slot, "the print of %s was interrupted (%s)" % (job["name"], reason))
         text = ("The print of %s was interrupted: %s (last confirmed line %d). Check the bed, "
                 "then print it again with `hostd requeue %s`." % (job["name"], reason, line,
                                                                    job["id"]))

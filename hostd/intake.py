@@ -81,11 +81,12 @@ class IntakeMixin:
         log.info("job %s: %s claimed (profile %s)", job_id, rel_path, profile)
         job = self.store.get(job_id)
         if not any(self._eligible(s, job) for s in self.slots):
-            return self._fail(job, "No printer on node %s uses profile %r%s. Drop the file into "
-                              "a folder named after a printer or profile, or change the "
-                              "sidecar's `profile:`." % (self.config.node_id, profile,
-                                                         " in folder %r" % target if target else ""),
-                              "job.no_printer")
+            return self._fail(job, self._no_printer_text(profile, target), "job.no_printer")
+
+    def _no_printer_text(self, profile, target):
+        return ("No printer on node %s uses profile %r%s. Drop the file into a folder named "
+                "after a printer or profile, or change the sidecar's `profile:`."
+                % (self.config.node_id, profile, " in folder %r" % target if target else ""))
 
     def _profile_for(self, target, sidecar):
         if sidecar is not None and sidecar.profile:

@@ -74,6 +74,7 @@ CREATE TABLE IF NOT EXISTS printers (
     name TEXT PRIMARY KEY,
     state TEXT,
     paused INTEGER NOT NULL DEFAULT 0,
+    held TEXT,
     job_id TEXT,
     updated_at REAL
 );
@@ -189,6 +190,10 @@ class JobStore:
     def _create_tables(self):
         try:
             self.db.executescript(_SCHEMA)
+            # Stores made before printers could be held get the column that says why.
+            cols = {r[1] for r in self.db.execute("PRAGMA table_info(printers)")}
+            if "held" not in cols:
+                self.db.execute("ALTER TABLE printers ADD COLUMN held TEXT")
         except sqlite3.OperationalError:
             if self.db.in_transaction:
                 self.db.rollback()

@@ -44,12 +44,17 @@ class RecoveryMixin:
                 log.warning("job %s: %s was being planned when hostd stopped; planning it again",
                             job_id, job["rel_path"])
             if job["state"] == J.INTERRUPTED:
+                for slot in self.slots:
+                    if slot.name == job["printer"] and slot.held is None:
+                        self._hold(slot, "the print of %s was interrupted when hostd stopped"
+                                   % job["name"])
                 log.warning("job %s: %s was printing when hostd stopped (last confirmed line %d); "
                             "interrupted, the file is in failed/", job_id, job["rel_path"],
                             job["last_line"])
                 self._to_failed(job, "The print of %s was interrupted: the daemon stopped or "
-                                     "crashed while printing (last confirmed line %d). Check "
-                                     "the printer and the bed, then print it again with "
+                                     "crashed while printing (last confirmed line %d). The "
+                                     "printer is held: clear the bed, resume the printer, "
+                                     "then print it again with "
                                      "`hostd requeue %s`." % (job["name"], job["last_line"],
                                                              job_id))
         for job in self.store.list([J.QUEUED, J.READY]):

@@ -32,6 +32,7 @@ class Slot:
         self.ending = None           # records a finished print once the store takes it
         self.progress_due = 0.0      # when its progress is next written to the store
         self.paused = False          # operator pause: no new jobs
+        self.held = None             # why a print ended abnormally here, until a person resumes
         self.error = None
         self._thread = None
 

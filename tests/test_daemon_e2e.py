@@ -193,9 +193,16 @@ def test_kill_during_printing_then_restart_is_interrupted(tmp_path, dome):
         failed = tmp_path / "share" / "failed"
         assert (failed / "dome.npy").read_bytes() == dome.read_bytes()
         assert "requeue" in (failed / "dome.error.txt").read_text()
-        # a person requeues it: the cached plan is printed again
+        # a person requeues it: the cached plan is ready, but the printer is held (the
+        # interrupted print is still on its bed) until the person resumes it
         job_id = jobs(cfg)[0]["id"]
         r = hostd("requeue", job_id, "-c", cfg)
+        assert r.returncode == 0, r.stderr
+        wait_for(lambda: states(cfg) == {"dome.npy": "ready"}, timeout=30, proc=d,
+                 what="ready again")
+        time.sleep(2.0)
+        assert states(cfg) == {"dome.npy": "ready"}
+        r = hostd("resume", "p1", "-c", cfg)
         assert r.returncode == 0, r.stderr
         wait_for(lambda: states(cfg) == {"dome.npy": "printing"}, timeout=30, proc=d,
                  what="printing again")

@@ -340,7 +340,8 @@ class NodeView:
             for name in names:
                 row = rows.get(name, {})
                 out.append(self._printer_dict(name, row.get("state"), bool(row.get("paused")),
-                                              row.get("job_id"), None, {}, {}, None, None))
+                                              row.get("job_id"), None, {}, {}, None, None,
+                                              held=row.get("held")))
             return out
         for slot in self.daemon.slots:
             printer = slot.printer
@@ -360,17 +361,18 @@ class NodeView:
             out.append(self._printer_dict(slot.name, slot.state, slot.paused,
                                           slot.job_id, live, temps, stats,
                                           starvation, slot.error, hist if history else None,
-                                          slot.config.profile))
+                                          slot.config.profile, held=slot.held))
         return out
 
     def _printer_dict(self, name, state, paused, job_id, live, temps, stats, starvation,
-                      error, history=None, profile=None):
+                      error, history=None, profile=None, held=None):
         cfg = self.config.printer(name)
         job = self.job(job_id) if job_id else None
         d = {"name": name, "profile": profile or (cfg.profile if cfg else None),
              "state": page_state(state, paused), "link_state": state, "paused": bool(paused),
              "temperatures": temps, "lines_sent": stats.get("lines_sent"),
              "resends": stats.get("resends"), "starvation_s": starvation, "error": error,
+             "held": held,
              "job": self.job_info(job, live) if job else None}
         if history is not None:
             d["history"] = history

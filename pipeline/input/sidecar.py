@@ -4,10 +4,12 @@ Errors (``InvalidSidecar``): ``sidecar.yaml``, ``.unknown_key``, ``.type``, ``.v
 ``.conflict``; each names the file, the key and the fix.
 """
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 import yaml
 
 from pipeline.errors import InvalidSidecar
@@ -20,7 +22,7 @@ class Sidecar:
 
     size_mm : longest footprint side, mm (or ``pixel_mm``: grid spacing, mm)
     height_mm : maximum height, mm (or ``height_scale``: mm per input unit)
-    profile : profile name or path to plan with
+    profile : name of the profile to plan with (a name only, never a path)
     max_fill_mm : deepest closed depression to fill, mm (overrides the profile)
     min_prominence_mm : smallest peak kept by simplification, mm (overrides the profile)
     smooth_mm : smoothing scale before meshing, mm (overrides the profile)
@@ -94,12 +96,23 @@ def load_sidecar(path):
     return Sidecar(**vals, source=src)
 
 
+# A profile is named, never given by path: a sidecar comes from anyone who can write
+# to the drop folder, and a path would make the node read (and report) any file.
+_PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
 def _sidecar_value(key, value, kind, positive, src):
     if kind == "str":
         if not isinstance(value, str) or not value:
-            raise InvalidSidecar("%s must be a non-empty string, got %r" % (key, value),
+            raise InvalidSidecar("%s must be a non-empty string" % key,
                                  code="sidecar.type", file=src, where=key,
                                  fix="write e.g. `profile: generic-0.5mm`")
+        if key == "profile" and (not _PROFILE_NAME.fullmatch(value)
+                                 or value.endswith((".yaml", ".yml"))):
+            raise InvalidSidecar("profile must be the name of a profile this node has, "
+                                 "not a path or file name", code="sidecar.profile", file=src,
+                                 where=key, fix="write the profile's name, e.g. "
+                                 "`profile: generic-0.5mm` (the printers' profiles are in hostd.yaml)")
         return value
     is_int = isinstance(value, int) and not isinstance(value, bool)
     if kind == "int" and not is_int:

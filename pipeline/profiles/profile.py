@@ -12,6 +12,7 @@ separated), then the repo's ``profiles/``, then ``sys.prefix/share/hostd/profile
 
 import copy
 import os
+import re
 import string
 import sys
 from dataclasses import MISSING, dataclass, field, fields
@@ -213,6 +214,25 @@ def _err(msg, code, src, where, fix):
     return InvalidProfile(msg, code=code, file=src, where=where, fix=fix)
 
 
+_KEYLIKE = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,39}")
+
+
+def _got(value):
+    """What a wrong value is, without its text: a profile error is shown on pages and in
+    files others read, and the file it came from may not be a profile at all."""
+    if isinstance(value, bool):
+        return "got true/false"
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return "got the number %g" % value
+    if isinstance(value, str):
+        return "got text"
+    if isinstance(value, (list, tuple)):
+        return "got a list of %d items" % len(value)
+    if isinstance(value, dict):
+        return "got a mapping"
+    return "got %s" % type(value).__name__
+
+
 def _type_name(kind):
     return {"float": "a number", "int": "an integer", "str": "a string",
             "section": "a mapping", "pair": "a list of two numbers"}.get(kind, kind)
@@ -224,19 +244,19 @@ def _check_value(value, f, key, src):
     kind = m["kind"]
     if kind == "str":
         if not isinstance(value, str):
-            raise _err("%s must be a string, got %r" % (key, value), "profile.type", src, key,
+            raise _err("%s must be a string, %s" % (key, _got(value)), "profile.type", src, key,
                        "quote the value")
         if m["choices"] and value not in m["choices"]:
-            raise _err("%s must be one of %s, got %r" % (key, ", ".join(m["choices"]), value),
+            raise _err("%s must be one of %s" % (key, ", ".join(m["choices"])),
                        "profile.value", src, key, "use one of " + ", ".join(m["choices"]))
         return value
     is_int = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
     is_num = is_int or (isinstance(value, (float, np.floating)) and not isinstance(value, bool))
     if kind == "int" and not is_int:
-        raise _err("%s must be an integer, got %r" % (key, value), "profile.type", src, key,
+        raise _err("%s must be an integer, %s" % (key, _got(value)), "profile.type", src, key,
                    "write a whole number without a decimal point")
     if not is_num:
-        raise _err("%s must be a number, got %r" % (key, value), "profile.type", src, key,
+        raise _err("%s must be a number, %s" % (key, _got(value)), "profile.type", src, key,
                    "write a plain number (YAML reads 1e-3 as text; write 0.001)")
     v = int(value) if kind == "int" else float(value)
     lo, hi = m["lo"], m["hi"]
@@ -244,7 +264,7 @@ def _check_value(value, f, key, src):
         rng = "%s %g" % (">" if m["strict"] else ">=", lo)
         if hi is not None:
             rng += " and <= %g" % hi
-        raise _err("%s = %r is out of range (must be %s)" % (key, value, rng), "profile.value",
+        raise _err("%s = %g is out of range (must be %s)" % (key, v, rng), "profile.value",
                    src, key, "use a value %s" % rng)
     return v
 
@@ -254,14 +274,18 @@ def _build(cls, data, path, src):
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise _err("%s must be a mapping of keys, got %r" % (path or "the profile", data),
+        raise _err("%s must be a mapping of keys, %s" % (path or "the profile", _got(data)),
                    "profile.type", src, path or "/", "write it as `key: value` lines")
     schema = [f for f in fields(cls) if f.metadata.get("kind")]
     known = {f.name for f in schema}
-    unknown = [str(k) for k in data if k not in known]
+    unknown = [k for k in data if k not in known]
     if unknown:
-        key = (path + "." if path else "") + unknown[0]
-        raise _err("unknown key %r" % key, "profile.unknown_key", src, key,
+        # A key is named only when it looks like one (a misspelt `prnt`), never a line
+        # of some other file read as YAML.
+        name = unknown[0] if _KEYLIKE.fullmatch(str(unknown[0])) else None
+        key = (path + "." if path else "") + name if name else (path or "/")
+        raise _err("unknown key %s" % (repr(key) if name else "in " + (path or "the profile")),
+                   "profile.unknown_key", src, key,
                    "remove it or use one of: " + ", ".join(sorted(known)))
     out = {}
     for f in schema:
@@ -285,7 +309,7 @@ def _build(cls, data, path, src):
 
 def _pair(value, key, src):
     if not (isinstance(value, (list, tuple)) and len(value) == 2):
-        raise _err("%s must be a list of two numbers [x, y], got %r" % (key, value),
+        raise _err("%s must be a list of two numbers [x, y], %s" % (key, _got(value)),
                    "profile.type", src, key, "write e.g. [220, 220]")
     f = _num()
     return tuple(_check_value(v, f, "%s[%d]" % (key, i), src) for i, v in enumerate(value))
@@ -297,10 +321,9 @@ def _curve(value, trange, src):
     if not isinstance(value, dict):
         raise _err("shrink_curve must be a mapping {degree, points}", "profile.type", src, key,
                    "write shrink_curve: {degree: 4, points: [[0.1, 0.343], ...]}")
-    unknown = [str(k) for k in value if k not in ("degree", "points")]
-    if unknown:
-        raise _err("unknown key %r" % (key + "." + unknown[0]), "profile.unknown_key", src,
-                   key + "." + unknown[0], "use degree and points")
+    if any(k not in ("degree", "points") for k in value):
+        raise _err("unknown key in shrink_curve", "profile.unknown_key", src, key,
+                   "keep only degree and points there")
     if "points" not in value:
         raise _err("missing required key 'shrink_curve.points'", "profile.missing_key", src,
                    key + ".points", "list the measured [thickness_mm, shrink] pairs")
