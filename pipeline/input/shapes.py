@@ -140,6 +140,31 @@ def terrain_tile(width_mm=120.0, depth_mm=90.0, height_mm=25.0, pixel_mm=0.5, se
     return HeightField(z, pixel_mm, source="terrain_tile")
 
 
+def _disk_field(diameter_mm, pixel_mm, f, height_mm, source):
+    """``f(u, v)`` on the unit disk, scaled to ``height_mm`` of relief above its lowest point."""
+    n = int(round(diameter_mm / pixel_mm)) + 1
+    u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(1, -1, n))
+    z = f(u, v)
+    inside = u * u + v * v <= 1.0
+    z = z - z[inside].min()
+    z = np.where(inside, z * height_mm / z[inside].max(), np.nan)
+    return HeightField(z, (diameter_mm) / (n - 1), source=source)
+
+
+def hyperbolic_paraboloid(diameter_mm=120.0, height_mm=30.0, pixel_mm=0.5):
+    """z ~ x^2 - y^2 on a disk: negative curvature everywhere, the paper's model cannot form it."""
+    return _disk_field(diameter_mm, pixel_mm, lambda u, v: u * u - v * v, height_mm,
+                       "hyperbolic_paraboloid")
+
+
+def monkey_saddle(diameter_mm=136.0, height_mm=22.0, pixel_mm=0.5):
+    """z ~ x^3 - 3 x y^2 on a disk: three valleys and three ridges around a flat point."""
+    return _disk_field(diameter_mm, pixel_mm, lambda u, v: u ** 3 - 3 * u * v * v, height_mm,
+                       "monkey_saddle")
+
+
 REFERENCE = {"dome": dome, "elongated_peak": elongated_peak, "saddle": saddle,
              "three_islands": three_islands, "starfish": starfish, "terrain_tile": terrain_tile}
 STRESS = {"starfish_ridged": starfish_ridged}
+# Negatively curved shapes the free-direction layout forms and the paper's cannot.
+SADDLES = {"hyperbolic_paraboloid": hyperbolic_paraboloid, "monkey_saddle": monkey_saddle}

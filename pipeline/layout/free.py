@@ -1,0 +1,243 @@
+"""The free-direction layout: each triangle chooses the direction it is printed along.
+
+A printed sheet shrinks by ``sigma`` along its path direction ``d`` and keeps its length
+across it. The map from the target surface to the flat sheet must therefore, on every
+triangle, be an isometry across ``d`` and a stretch by ``1/(1 - sigma)`` along it, with
+``sigma`` in ``[s_min, s_max]``: its 2x2 Jacobian has singular values ``1`` and
+``lambda`` in ``[1/(1 - s_min), 1/(1 - s_max)]``. The paper's method is the special case
+with ``d`` fixed to the isolines, which can only shorten isolines (domes); a free ``d``
+also forms saddles and valleys, where the sheet must lose length down the slope.
+
+Local/global iterations (as ARAP): the local step projects every triangle's Jacobian
+onto that set in closed form from its 2x2 singular value decomposition; the global step
+is one sparse solve with a matrix factored once. The start is the field seen from
+above (its vertical projection), which every height field has.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+# A Jacobian that leaves the admissible set by more than this (relative) counts as invalid.
+INVALID_TOL = 0.01
+
+
+@dataclass
+class FreeLayout:
+    """Outcome of :func:`flatten_free`.
+
+    xy : (n, 2) mm, the flat sheet; direction : (m, 2) unit print direction of each
+    triangle in the layout; sigma : (m,) its shrink (clamped to the printable range);
+    iterations, residual : the solve's; flipped : triangles turned over in the layout;
+    invalid_area_fraction, stretch_area_fraction, overshrink_area_fraction : shares of the
+    sheet whose map leaves the admissible set by more than 1 %, and why.
+    """
+
+    xy: np.ndarray
+    direction: np.ndarray
+    sigma: np.ndarray
+    iterations: int
+    residual: float
+    flipped: int
+    invalid_area_fraction: float
+    stretch_area_fraction: float
+    overshrink_area_fraction: float
+    invalid_edge_fraction: float = 0.0
+    timing_s: dict = field(default_factory=dict)
+
+    @property
+    def overlapping(self):
+        return self.flipped > 0
+
+    def report(self):
+        """The ``flatten`` section of the report for this method."""
+        s = self.sigma
+        return {"method": "free", "iterations": int(self.iterations),
+                "residual": float(self.residual), "flipped_triangles": int(self.flipped),
+                "invalid_area_fraction": float(self.invalid_area_fraction),
+                "invalid_area": {"would_stretch": float(self.stretch_area_fraction),
+                                 "would_shrink_too_much": float(self.overshrink_area_fraction)},
+                "invalid_edge_fraction": float(self.invalid_edge_fraction),
+                "sigma": {"min": float(s.min()), "p05": float(np.percentile(s, 5)),
+                          "mean": float(s.mean()), "p95": float(np.percentile(s, 95)),
+                          "max": float(s.max())}}
+
+
+def target_frames(vertices, faces):
+    """Each target triangle in an orthonormal frame of its own plane.
+
+    Returns (Dm_inv (m, 2, 2), area (m,) mm^2): the inverse of the matrix whose columns
+    are the sides corner 0 -> 1 and 0 -> 2 in that frame.
+    """
+    P = np.asarray(vertices, dtype=float)[faces]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    l1 = np.maximum(np.linalg.norm(e1, axis=1), 1e-12)
+    u = e1 / l1[:, None]
+    n = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    v = np.cross(n, u)
+    v /= np.maximum(np.linalg.norm(v, axis=1), 1e-12)[:, None]
+    Dm = np.zeros((len(P), 2, 2))
+    Dm[:, 0, 0] = l1
+    Dm[:, 0, 1] = np.einsum("fi,fi->f", e2, u)
+    Dm[:, 1, 1] = np.maximum(np.einsum("fi,fi->f", e2, v), 1e-9 * l1)
+    return np.linalg.inv(Dm), area
+
+
+def svd2(J):
+    """Signed SVD of 2x2 matrices: J = U diag(s1, s2) V^T with U, V rotations and
+    s1 >= |s2| (s2 < 0 for a reflection). J : (m, 2, 2). Returns U, s (m, 2), V."""
+    a, b, c, d = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
+    E, F = (a + d) / 2, (a - d) / 2
+    G, H = (c + b) / 2, (c - b) / 2
+    Q, R = np.hypot(E, H), np.hypot(F, G)
+    s1, s2 = Q + R, Q - R
+    a1, a2 = np.arctan2(G, F), np.arctan2(H, E)
+    theta, phi = (a2 - a1) / 2, (a2 + a1) / 2
+    return _rot(phi), np.stack([s1, s2], axis=1), _rot(-theta)
+
+
+def _rot(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([np.stack([c, -s], axis=1), np.stack([s, c], axis=1)], axis=1)
+
+
+def project(J, lam_lo, lam_hi):
+    """The nearest admissible Jacobians: singular values ``lambda`` in [lam_lo, lam_hi]
+    and 1, no reflection. J : (m, 2, 2). Returns (P (m, 2, 2), lambda (m,), U (m, 2, 2)).
+
+    With ``lambda >= 1`` the larger singular value becomes ``lambda`` (clamped) and the
+    smaller one 1; the singular vectors stay, which is the nearest point of the set
+    (von Neumann's trace inequality)."""
+    U, s, V = svd2(J)
+    lam = np.clip(s[:, 0], lam_lo, lam_hi)
+    S = np.zeros_like(J)
+    S[:, 0, 0] = lam
+    S[:, 1, 1] = 1.0
+    return U @ S @ np.transpose(V, (0, 2, 1)), lam, U
+
+
+def violation(J, lam_lo, lam_hi, tol=INVALID_TOL):
+    """Which triangles' Jacobians leave the set by more than ``tol``: (stretch, overshrink)
+    bool arrays. Stretch: some direction would have to get longer than printed (the
+    smaller singular value under 1, or a flip); overshrink: more shrink than the material
+    gives, or shrink in two directions."""
+    _, s, _ = svd2(J)
+    stretch = (s[:, 1] < 1 - tol) | (s[:, 0] < lam_lo * (1 - tol))
+    over = ~stretch & ((s[:, 0] > lam_hi * (1 + tol)) | (s[:, 1] > 1 + tol))
+    return stretch, over
+
+
+def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy=None,
+                 smooth_free_below=0.02):
+    """Lay the target ``mesh`` flat with a free print direction per triangle.
+
+    Parameters
+    ----------
+    mesh : Mesh (vertices (n, 3) mm, faces (m, 3) counter-clockwise from above)
+    s_min, s_max : the printable shrink range
+    iterations : cap of local/global iterations
+    tol : stop when the largest vertex move of an iteration is below ``tol`` times the
+        mean edge length
+    start_xy : (n, 2) mm, optional start (default: the vertical projection)
+    smooth_free_below : where sigma is below this the direction is free; it is
+        smoothed from the neighbours so the tool paths turn gently there
+
+    Returns
+    -------
+    FreeLayout
+    """
+    t0 = time.perf_counter()
+    V = np.asarray(mesh.vertices, dtype=float)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    n, m = len(V), len(faces)
+    lam_lo, lam_hi = 1.0 / (1.0 - s_min), 1.0 / (1.0 - s_max)
+    Dm_inv, area = target_frames(V, faces)
+    base = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
+    C = np.einsum("kc,fcd->fkd", base, Dm_inv)               # J = sum_k x_k (x) C[f, k]
+    rows = np.broadcast_to(np.arange(2 * m).reshape(m, 1, 2), (m, 3, 2))
+    cols = np.broadcast_to(faces[:, :, None], (m, 3, 2))
+    G = sp.csr_matrix((C.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * m, n))
+    W = sp.diags(np.repeat(area, 2))
+    GtW = (G.T @ W).tocsr()
+    M = (GtW @ G).tocsc()
+    eps = 1e-8 * float(M.diagonal().mean())
+    lu = splu(M + eps * sp.identity(n, format="csc"), permc_spec="MMD_AT_PLUS_A")
+    X = (np.asarray(start_xy, dtype=float) if start_xy is not None else V[:, :2]).copy()
+    mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
+    setup = time.perf_counter() - t0
+    it, residual = 0, np.inf
+    for it in range(1, iterations + 1):
+        J = _jacobians(G, X, m)
+        P, _, _ = project(J, lam_lo, lam_hi)
+        residual = float(np.sqrt(np.einsum("f,fij,fij->", area, J - P, J - P) / area.sum()))
+        # G X stacks each triangle's J as two rows (columns of J^T): rhs = G^T W P^T.
+        rhs = GtW @ np.transpose(P, (0, 2, 1)).reshape(2 * m, 2)
+        Xn = lu.solve(rhs + eps * X)
+        move = float(np.abs(Xn - X).max())
+        X = Xn - Xn.mean(axis=0) + X.mean(axis=0)
+        if move < tol * mean_edge:
+            break
+    J = _jacobians(G, X, m)
+    _, lam, U = project(J, lam_lo, lam_hi)
+    d = U[:, :, 0]
+    sigma = 1.0 - 1.0 / lam
+    d = smooth_free_directions(d, sigma, faces, smooth_free_below)
+    stretch, over = violation(J, lam_lo, lam_hi)
+    total = area.sum()
+    flipped = int(np.count_nonzero(np.linalg.det(J) <= 0))
+    return FreeLayout(xy=X, direction=d, sigma=sigma, iterations=it, residual=residual,
+                      flipped=flipped,
+                      invalid_area_fraction=float(area[stretch | over].sum() / total),
+                      stretch_area_fraction=float(area[stretch].sum() / total),
+                      overshrink_area_fraction=float(area[over].sum() / total),
+                      invalid_edge_fraction=_invalid_edges_along(J, d, X, faces, lam_lo, lam_hi),
+                      timing_s={"setup": setup, "total": time.perf_counter() - t0})
+
+
+def _jacobians(G, X, m):
+    """(m, 2, 2) Jacobians of the layout ``X`` ((n, 2)) from the stacked rows ``G``."""
+    return np.transpose((G @ X).reshape(m, 2, 2), (0, 2, 1))
+
+
+def smooth_free_directions(d, sigma, faces, below, rounds=20):
+    """Where ``sigma < below`` the print direction is free: replace it, a few Jacobi
+    rounds, by its neighbours' (as a line field: doubled angles averaged), so that paths
+    do not turn on rounding noise. d : (m, 2) unit; returns (m, 2)."""
+    free = sigma < below
+    if not free.any() or free.all():
+        return d
+    from pipeline.mechanics.constraints import topology
+    top = topology(faces)
+    f0, f1 = top.edge_faces[top.hinge_edge].T
+    z = np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
+    weight = np.where(free, 0.0, np.maximum(sigma, 0.0))
+    for _ in range(rounds):
+        acc = np.zeros(len(d), complex)
+        np.add.at(acc, f0, z[f1] * (weight[f1] + 1e-3))
+        np.add.at(acc, f1, z[f0] * (weight[f0] + 1e-3))
+        upd = free & (np.abs(acc) > 0)
+        z[upd] = acc[upd] / np.abs(acc[upd])
+    ang = np.angle(z) / 2
+    out = d.copy()
+    out[free] = np.stack([np.cos(ang[free]), np.sin(ang[free])], axis=1)
+    return out
+
+
+def _invalid_edges_along(J, d, X, faces, lam_lo, lam_hi, tol=INVALID_TOL):
+    """Share of triangles whose side most along ``d`` needs a shrink outside the range
+    (the paper's invalid-edge figure, on the edges that print)."""
+    P = X[faces]
+    sides = P[:, [1, 2, 0]] - P
+    along = np.abs(np.einsum("fkc,fc->fk", sides, d)) / np.maximum(
+        np.linalg.norm(sides, axis=2), 1e-12)
+    k = np.argmax(along, axis=1)
+    e = sides[np.arange(len(faces)), k]                     # flat side
+    Jinv = np.linalg.inv(J)
+    t = np.einsum("fij,fj->fi", Jinv, e)                    # its length on the target
+    ratio = np.linalg.norm(e, axis=1) / np.maximum(np.linalg.norm(t, axis=1), 1e-12)
+    bad = (ratio < lam_lo * (1 - tol)) | (ratio > lam_hi * (1 + tol))
+    return float(bad.mean())

@@ -1,0 +1,101 @@
+"""A plain triangulation of a height field over its footprint, for layouts that need no
+isoline graph (the free-direction method).
+
+A regular grid of ``spacing_mm``, each square cut along alternating diagonals (so the
+mesh has no preferred direction), keeping the triangles whose corners and centre lie on
+the footprint; heights are read from the field by bilinear interpolation. Any footprint
+and any terrain mesh this way: no isoline can cross another, so nothing can overlap.
+"""
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from pipeline.errors import MeshingError
+from pipeline.geometry import Mesh
+
+
+def build_grid_mesh(hf, spacing_mm=1.0):
+    """Triangulate ``hf`` (a validated :class:`HeightField`) on a regular grid.
+
+    Returns a :class:`Mesh` with every edge a bridge edge (no printing edges: the
+    layout chooses the print direction) and ``vertex_level`` the vertices' heights.
+    """
+    z = np.asarray(hf.z, dtype=float)
+    inside = np.isfinite(z)
+    rows, cols = z.shape
+    px = float(hf.pixel_mm)
+    width, height = (cols - 1) * px, (rows - 1) * px
+    nx = max(int(np.floor(width / spacing_mm)), 1) + 1
+    ny = max(int(np.floor(height / spacing_mm)), 1) + 1
+    xs = np.linspace(0.0, width, nx)
+    ys = np.linspace(0.0, height, ny)
+    X, Y = np.meshgrid(xs, ys)
+    pts = np.c_[X.ravel(), Y.ravel()]
+    ok = _on_footprint(hf, inside, pts)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    flip = ((np.arange(ny - 1)[:, None] + np.arange(nx - 1)[None, :]) % 2).ravel().astype(bool)
+    # Counter-clockwise seen from +z (y grows with the row index here).
+    t1 = np.where(flip[:, None], np.c_[a, b, d], np.c_[a, b, c])
+    t2 = np.where(flip[:, None], np.c_[a, d, c], np.c_[b, d, c])
+    faces = np.concatenate([t1, t2])
+    centre = pts[faces].mean(axis=1)
+    keep = ok[faces].all(axis=1) & _on_footprint(hf, inside, centre)
+    faces = faces[keep]
+    if len(faces) == 0:
+        raise MeshingError("the footprint is narrower than the mesh spacing (%.3g mm)"
+                           % spacing_mm, code="mesh.too_small",
+                           fix="make the part larger (size_mm) or lower mesh.grid_mm")
+    used = np.unique(faces)
+    remap = np.full(len(pts), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    faces = _one_piece(remap[faces])
+    used2 = np.unique(faces)
+    remap2 = np.full(len(used), -1, dtype=np.int64)
+    remap2[used2] = np.arange(len(used2))
+    faces = remap2[faces]
+    xy = pts[used][used2]
+    zz = _heights(hf, z, inside, xy)
+    V = np.c_[xy, zz]
+    from pipeline.geometry import unique_edges
+    return Mesh(vertices=V, faces=faces, printing_edges=np.zeros((0, 2), np.int64),
+                bridge_edges=unique_edges(faces), vertex_level=zz,
+                printing_isoline=np.zeros(0, np.int64),
+                info={"method": "grid", "grid_mm": float(spacing_mm)})
+
+
+def _on_footprint(hf, inside, pts):
+    r, c = hf.rc(pts)
+    ri = np.clip(np.rint(r).astype(int), 0, inside.shape[0] - 1)
+    ci = np.clip(np.rint(c).astype(int), 0, inside.shape[1] - 1)
+    return inside[ri, ci]
+
+
+def _heights(hf, z, inside, xy):
+    """Bilinear heights at ``xy``; samples next to the outside use the nearest inside one."""
+    from scipy.ndimage import distance_transform_edt
+    filled = z[tuple(distance_transform_edt(~inside, return_distances=False,
+                                            return_indices=True))]
+    r, c = hf.rc(xy)
+    return map_coordinates(filled, [r, c], order=1, mode="nearest")
+
+
+def _one_piece(faces):
+    """The faces of the largest edge-connected piece (a footprint pinched at a grid
+    corner would otherwise give a sheet of two pieces)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    m = len(faces)
+    he = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    owner = np.repeat(np.arange(m), 3)
+    key = he[:, 0] * (faces.max() + 1) + he[:, 1]
+    order = np.argsort(key, kind="stable")
+    k, o = key[order], owner[order]
+    same = np.flatnonzero(k[1:] == k[:-1])
+    adj = coo_matrix((np.ones(len(same)), (o[same], o[same + 1])), shape=(m, m))
+    n, label = connected_components(adj, directed=False)
+    if n == 1:
+        return faces
+    big = np.argmax(np.bincount(label))
+    return faces[label == big]
