@@ -114,6 +114,26 @@ def render(groups):
     if models:
         out += ["## Whole plan (`benchmarks/pipeline.py`)", "", *_table(models), ""]
         out += _conditions(groups, ("plan", "terrain", "fine_map"))
+    layout = _models(groups.get("layout", {}).get("results", {}))
+    if layout:
+        out += ["## Layout methods side by side (`benchmarks/pipeline.py --only layout`)", "",
+                "The paper's isoline method against the free print direction, layout stage "
+                "only (profile `generic-0.5mm`; free method on a 1 mm grid, 200 iterations). "
+                "Invalid: the share of printing edges (isoline) or of the sheet's area (free) "
+                "whose shrink leaves the printable range by more than 1 %.", "",
+                "| model | method | triangles | invalid edges | stretch | invalid area "
+                "(stretch / overshrink) | flipped | flatten s | peak RSS MB |",
+                "|---|---|---|---|---|---|---|---|---|"]
+        for name, r in layout.items():
+            area = (None if r.get("invalid_area_fraction") is None else "%s (%s / %s)" % (
+                _pct(r["invalid_area_fraction"]), _pct(r["stretch_area_fraction"]),
+                _pct(r["overshrink_area_fraction"])))
+            cells = [name.split(" ")[0], r["method"], _k(r.get("triangles")),
+                     _pct(r.get("invalid_edge_fraction")), _pct(r.get("stretch_edge_fraction")),
+                     area, r.get("flipped"), _f(r.get("flatten_s"), 1),
+                     _f(r.get("peak_rss_mb"), 0)]
+            out.append("| " + " | ".join("" if c is None else str(c) for c in cells) + " |")
+        out += [""] + _conditions(groups, ("layout",))
     flat = groups.get("flatten", {}).get("results", {})
     if flat:
         out += ["## Flattening scaling (`benchmarks/pipeline.py --only flatten`)", "",

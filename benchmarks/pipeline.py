@@ -110,6 +110,72 @@ print(json.dumps({"ok": True}))
 """
 
 
+LAYOUT = r"""
+import numpy as np
+from pipeline.input import heightfield as hfio, shapes
+from pipeline.input.sidecar import settings as sidecar_settings
+from pipeline.input.validate import validate
+from pipeline.input.simplify import simplify
+from pipeline.profiles.profile import load_profile
+from pipeline.meshing.isoline import build_mesh
+from pipeline.meshing.grid import build_grid_mesh
+from pipeline.layout.isoline import flatten
+from pipeline.layout.free import flatten_free
+name, method = sys.argv[1], sys.argv[2]
+prof = load_profile("generic-0.5mm")
+lim, mp = prof.shrink_limits, prof.mesh
+t0 = time.perf_counter()
+if name.endswith(".png"):
+    hf, side = hfio.load(name, profile=prof)
+    hf, _ = hfio.coarsen(hf, prof.validate.working_pixel_mm)
+    opts = sidecar_settings(side, prof)
+else:
+    shape = {**shapes.REFERENCE, **shapes.SADDLES}[name]
+    hf = shape(**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
+    opts = sidecar_settings(None, prof)
+hf, _ = validate(hf, opts["max_fill_mm"], bed_mm=prof.bed_mm)
+hf, _ = simplify(hf, opts["min_prominence_mm"], opts["smooth_mm"])
+t1 = time.perf_counter()
+out = {"method": method}
+if method == "isoline":
+    mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
+                      gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
+    t2 = time.perf_counter()
+    flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=prof.flatten.iterations)
+    out.update(invalid_edge_fraction=flat.invalid_edge_fraction,
+               stretch_edge_fraction=float(np.mean(flat.sigma < lim.s_min - 1e-3)),
+               flipped=int(flat.flipped_triangles))
+else:
+    mesh = build_grid_mesh(hf, 1.0)
+    t2 = time.perf_counter()
+    flat = flatten_free(mesh, lim.s_min, lim.s_max)
+    out.update(invalid_edge_fraction=flat.invalid_edge_fraction,
+               invalid_area_fraction=flat.invalid_area_fraction,
+               stretch_area_fraction=flat.stretch_area_fraction,
+               overshrink_area_fraction=flat.overshrink_area_fraction,
+               flipped=int(flat.flipped), iterations=int(flat.iterations))
+t3 = time.perf_counter()
+out.update(triangles=len(mesh.faces), load_validate_s=round(t1 - t0, 3), mesh_s=round(t2 - t1, 3),
+           flatten_s=round(t3 - t2, 3),
+           longest_diameter_mm=round(float(np.linalg.norm(np.ptp(mesh.vertices[:, :2], axis=0))), 1),
+           peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1))
+print(json.dumps(out))
+"""
+
+
+def bench_layout(names=("dome", "starfish", "saddle", "three_islands", "elongated_peak",
+                        "terrain_tile", "hyperbolic_paraboloid", "monkey_saddle")):
+    """Both layout methods side by side: the share of the sheet each cannot make."""
+    inputs = list(names)
+    if TERRAIN.is_dir():
+        inputs += [str(p) for p in sorted(TERRAIN.glob("*.png"))]
+    out = {}
+    for name in inputs:
+        key = Path(name).stem if name.endswith(".png") else name
+        out[key] = {"methods": {m: _child(LAYOUT, name, m) for m in ("isoline", "free")}}
+    return out
+
+
 FINE_MAP = r"""
 import numpy as np
 from PIL import Image
@@ -169,7 +235,7 @@ def bench_terrain():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map"])
+    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map", "layout"])
     ap.add_argument("--models", help="comma-separated reference shapes for the plan group")
     ap.add_argument("--no-save", action="store_true",
                     help="print only; keep benchmarks/results and docs/figures.md as they are")
@@ -186,11 +252,13 @@ def main():
         result["terrain"] = bench_terrain()
     if args.only in (None, "fine_map"):
         result["fine_map"] = bench_fine_map()
+    if args.only in (None, "layout"):
+        result["layout"] = bench_layout()
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
     if not args.no_save:
         cond = figures.conditions()
-        for group in ("flatten", "plan", "terrain", "fine_map"):
+        for group in ("flatten", "plan", "terrain", "fine_map", "layout"):
             if group in result:
                 figures.save(group, result[group], cond)
         figures.write()

@@ -51,7 +51,6 @@ def test_the_projection_matches_brute_force():
     J = rng.normal(scale=0.5, size=(20, 2, 2)) + np.eye(2)
     P, _, _ = project(J, LO, HI)
     t = np.linspace(0, 2 * np.pi, 721)
-    c, s = np.cos(t), np.sin(t)
     for j, p in zip(J, P):
         # For rotations U(a), V(b) the best lambda is clamp((U^T J V)_00); search a and b.
         a, b = np.meshgrid(t, t, indexing="ij")

@@ -28,7 +28,7 @@ def fake_daemon(node, state="printing", with_job=True):
     printer = SimpleNamespace(temperatures=temps, simulator=sim,
                               stats={"lines_sent": 1234, "resends": 3, "lines_resent": 3,
                                      "timeouts": 0})
-    slot = SimpleNamespace(name="sim", printer=printer, state=state, paused=False,
+    slot = SimpleNamespace(name="sim", printer=printer, state=state, paused=False, held=None,
                            job_id=node.printing if with_job else None,
                            link_job=FakeLinkJob(1, 4) if with_job else None, error=None,
                            config=node.config.printers[0])

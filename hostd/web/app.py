@@ -12,11 +12,11 @@ sends actions to the API with the token kept in the tab's sessionStorage.
 
 import time
 
-from flask import Flask, abort, render_template, request
+from flask import Flask, render_template, request
 
 from hostd import jobs as J
 from hostd.errors import HostdError
-from hostd.web import api
+from hostd.web import api, pages
 from hostd.web.view import NodeView
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
@@ -65,20 +65,28 @@ def create_app(config, store=None, daemon=None):
     app.register_blueprint(octoprint.bp)
     app.register_blueprint(metrics.bp)
     app.jinja_env.filters.update(duration=_duration, when=_when, chart=_chart_points)
+    app.context_processor(lambda: {"node_id": config.node_id})
+    app.after_request(security_headers)
+    add_error_pages(app)
+    pages.add_pages(app, DESTRUCTIVE)
+    pages.add_form_actions(app, DESTRUCTIVE)
+    return app
 
-    @app.after_request
-    def headers(resp):
-        resp.headers.setdefault("Content-Security-Policy", CSP)
-        resp.headers["X-Content-Type-Options"] = "nosniff"
-        resp.headers["Referrer-Policy"] = "no-referrer"
-        if request.path.startswith("/api/jobs/") and "/files/" in request.path:
-            resp.headers["Content-Security-Policy"] = "sandbox; default-src 'none'; " \
-                                                      "img-src 'self'; style-src 'unsafe-inline'"
-        return resp
 
-    @app.context_processor
-    def node():
-        return {"node_id": config.node_id}
+def security_headers(resp):
+    """What a browser may do with our answers: our own scripts and styles only; files
+    from the outbox are sandboxed (an SVG or HTML there runs nothing)."""
+    resp.headers.setdefault("Content-Security-Policy", CSP)
+    resp.headers["X-Content-Type-Options"] = "nosniff"
+    resp.headers["Referrer-Policy"] = "no-referrer"
+    if request.path.startswith("/api/jobs/") and "/files/" in request.path:
+        resp.headers["Content-Security-Policy"] = "sandbox; default-src 'none'; " \
+                                                  "img-src 'self'; style-src 'unsafe-inline'"
+    return resp
+
+
+def add_error_pages(app):
+    """Errors as JSON under /api/, as a page elsewhere."""
 
     @app.errorhandler(413)
     def too_large(_exc):
@@ -99,70 +107,3 @@ def create_app(config, store=None, daemon=None):
             return api.error(404, "not found")
         return render_template("message.html", title="Not found", ok=False,
                                message="There is nothing at this address."), 404
-
-    # -- pages ------------------------------------------------------------------------------
-
-    @app.get("/")
-    def index():
-        v = api.view()
-        return render_template("index.html", s=v.status(history=True), J=J,
-                               destructive=DESTRUCTIVE)
-
-    @app.get("/jobs/<job_id>")
-    def job_page(job_id):
-        v = api.view()
-        row = v.job(job_id)
-        if row is None:
-            abort(404)
-        live = None
-        if v.daemon is not None:
-            for slot in v.daemon.slots:
-                if slot.job_id == job_id and slot.link_job is not None:
-                    live = slot.link_job.snapshot()
-        return render_template("job.html", node_id=v.config.node_id,
-                               job=v.job_info(row, live, with_report=True), J=J)
-
-    @app.get("/farm")
-    def farm():
-        v = api.view()
-        return render_template("farm.html", node_id=v.config.node_id, nodes=v.nodes(),
-                               dropped=v.drop_folder(), now=time.time())
-
-    # -- plain-HTML actions (no JavaScript) --------------------------------------------------
-
-    def _form_action(kind, ident, action, run):
-        problem = api.token_problem(request.form.get("token"))
-        if problem:
-            return render_template("message.html", title="Refused", ok=False,
-                                   message=problem[1]), problem[0]
-        if action in DESTRUCTIVE and request.form.get("confirm") != "yes":
-            return render_template("message.html", title="Not confirmed", ok=False,
-                                   message="%s is destructive: tick the confirmation box and "
-                                           "send again." % action), 400
-        status, body = run()
-        message = body.get("result") or body.get("message") or body.get("error") or ""
-        return render_template("message.html", title="%s %s %s" % (action, kind, ident),
-                               ok=status < 300, message=message), status
-
-    @app.post("/actions/jobs/<job_id>/<action>")
-    def form_job(job_id, action):
-        if action in ("top", "up", "down", "bottom"):
-            return _form_action("job", job_id, action,
-                                lambda: api.move_in_queue(job_id, action))
-        if action not in api.JOB_ACTIONS:
-            abort(404)
-        return _form_action("job", job_id, action, lambda: api.job_action(job_id, action))
-
-    @app.post("/actions/printers/<name>/<action>")
-    def form_printer(name, action):
-        if action not in ("estop", "pause", "resume"):
-            abort(404)
-        return _form_action("printer", name, action, lambda: api.printer_action(name, action))
-
-    @app.post("/actions/upload")
-    def form_upload():
-        return _form_action("file", "", "upload", lambda: api.save_upload(
-            request.files.get("file"), request.files.get("sidecar"),
-            request.form.get("printer") or None))
-
-    return app
