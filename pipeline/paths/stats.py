@@ -20,7 +20,8 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
     traces : list of (k, 2) float, mm; tsig : list of (k - 1,) float
     raw : list of ((k, 2) float, closed bool), the loops and arcs before chaining
     xy : (n, 2) float, mm, flat layout; faces : (m, 3) int
-    level, u : (n,) float, isoline value and path index per vertex
+    level, u : (n,) float, isoline value and path index per vertex (None: paths not
+        from isolines, no ``isoline_angle_deg``)
     poly : shapely polygon, the flat outline; pw : float, path width mm
     """
     seg_count = sum(len(s) for s in tsig)
@@ -58,8 +59,8 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
             "coverage": float(covered.mean()) if len(covered) else 0.0,
             "overlap": float(twice.mean()) if len(covered) else 0.0,
             "loops_and_arcs": len(raw),
-            "isoline_angle_deg": dict(zip(("p50", "p95"), _weighted_percentiles(
-                *isoline_angles(xy, faces, level, u), [50, 95])))}
+            **({} if level is None else {"isoline_angle_deg": dict(zip(("p50", "p95"), (
+                _weighted_percentiles(*isoline_angles(xy, faces, level, u), [50, 95]))))})}
 
 
 def coverage_grid(samples, label, xy, poly, pw):

@@ -1,0 +1,259 @@
+"""Tool paths along any direction field: stripe patterns (Knoppel, Crane, Pinkall and
+Schroder, "Stripe Patterns on Surfaces", 2015).
+
+The free-direction layout gives each triangle a print direction ``d``; such a field
+turns, has curl and has singular points, so no single scalar field has level sets along
+it. Instead, a complex value per vertex whose phase advances by 2 pi per path width
+across ``d``: the smallest eigenvector of a sparse Hermitian problem, with the sign
+flips of a line field (``d`` and ``-d`` are the same direction) written as complex
+conjugation. The paths are the phase's level sets; where the phase winds around a
+triangle (a fork of the stripes) or the line field turns over (a branch point), the
+triangle holds no path, and paths end there.
+"""
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import eigsh
+
+from pipeline.geometry import unique_edges
+
+
+def vertex_line_field(xy, faces, normal):
+    """Per-vertex unit line field from per-face ``normal`` ((m, 2) unit): area-weighted
+    mean of the doubled angles. Returns (n, 2)."""
+    P = np.asarray(xy, dtype=float)[faces]
+    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    z = area * np.exp(2j * np.arctan2(normal[:, 1], normal[:, 0]))
+    acc = np.zeros(len(xy), complex)
+    np.add.at(acc, faces.ravel(), np.repeat(z, 3))
+    ang = np.angle(acc) / 2
+    return np.stack([np.cos(ang), np.sin(ang)], axis=1)
+
+
+def stripe_phase(xy, faces, normal, width_mm):
+    """Phase per vertex ((n,) rad) whose gradient is ``2 pi / width`` along the line
+    field ``normal`` (per face, unit; the paths run across it), and the vertex field
+    ``X`` ((n, 2)) the phase is measured along."""
+    xy = np.asarray(xy, dtype=float)
+    n = len(xy)
+    X = vertex_line_field(xy, faces, normal)
+    E = unique_edges(faces)
+    i, j = E[:, 0], E[:, 1]
+    s = np.where(np.einsum("ec,ec->e", X[i], X[j]) < 0, -1.0, 1.0)
+    omega = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[j] - xy[i],
+                                             0.5 * (X[i] + s[:, None] * X[j]))
+    w = _edge_weights(xy, faces, E)
+    c, sn = np.cos(omega), np.sin(omega)
+    # Transport of vertex i's value to j: rotation by omega, then conjugation if the
+    # line field turns over along the edge. T = [[c, -sn], [s sn, s c]].
+    T = np.stack([np.stack([c, -sn], 1), np.stack([s * sn, s * c], 1)], 1)   # (e, 2, 2)
+    rows, cols, vals = [], [], []
+    for a in range(2):
+        for b in range(2):
+            # A_ji = -w T, A_ij = -w T^T.
+            rows += [2 * j + a, 2 * i + b]
+            cols += [2 * i + b, 2 * j + a]
+            vals += [-w * T[:, a, b], -w * T[:, a, b]]
+    diag = np.bincount(np.concatenate([i, j]), np.concatenate([w, w]), n)
+    rows.append(np.arange(2 * n))
+    cols.append(np.arange(2 * n))
+    vals.append(np.repeat(diag, 2))
+    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(2 * n, 2 * n))
+    mass = np.repeat(_vertex_areas(xy, faces), 2)
+    B = sp.diags(mass)
+    shift = -1e-3 * float(diag.mean()) / float(mass.mean())
+    _, vec = eigsh(A, k=1, M=B, sigma=shift, which="LM")
+    psi = vec[0::2, 0] + 1j * vec[1::2, 0]
+    return np.angle(psi), X
+
+
+def corner_phases(xy, faces, phase, X, width_mm):
+    """Each triangle's three corner values of the path index (phase / 2 pi), unwrapped
+    in the triangle's own orientation of the line field: (m, 3), and a mask of the
+    triangles that hold paths: no branch of the line field, and no winding of the phase
+    (a fork of the stripes, where one path ends between two)."""
+    xy = np.asarray(xy, dtype=float)
+    Xf = X[faces]                                            # (m, 3, 2)
+    sign = np.where(np.einsum("mkc,mc->mk", Xf, Xf[:, 0]) < 0, -1.0, 1.0)
+    Xl = Xf * sign[:, :, None]
+    ph = phase[faces] * sign
+    P = xy[faces]
+    u = np.zeros(ph.shape)
+    total = np.zeros(len(faces))
+    for k in range(3):
+        a, b = k, (k + 1) % 3
+        om = 2 * np.pi / width_mm * np.einsum("mc,mc->m", P[:, b] - P[:, a],
+                                              0.5 * (Xl[:, a] + Xl[:, b]))
+        step = om + _wrap(ph[:, b] - ph[:, a] - om)
+        if b != 0:
+            u[:, b] = u[:, a] + step
+        total += step
+    u = (u + ph[:, :1]) / (2 * np.pi)
+    branch = np.einsum("mkc,mkc->mk", Xf, np.roll(Xf, -1, axis=1)).prod(axis=1) < 0
+    winding = np.abs(np.rint(total / (2 * np.pi))) > 0
+    return u, ~(branch | winding)
+
+
+def stripe_segments(xy, faces, u, ok):
+    """Level sets ``u = k + 1/2`` in every triangle that holds paths.
+
+    Returns (pts (s, 2, 2) mm, keys (s, 2) int64 shared by the segments that meet at a
+    point, face (s,) int)."""
+    xy = np.asarray(xy, dtype=float)
+    f_ok = np.flatnonzero(ok)
+    uf = u[f_ok]
+    lo = np.ceil(uf.min(axis=1) - 0.5)
+    hi = np.floor(uf.max(axis=1) - 0.5)
+    count = np.maximum(hi - lo + 1, 0).astype(np.int64)
+    f = np.repeat(f_ok, count)
+    first = np.repeat(lo, count)
+    level = first + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)) + 0.5
+    uu = u[f] - level[:, None]
+    uu = np.where(np.abs(uu) < 1e-9, 1e-9, uu)
+    neg = uu < 0
+    cross = neg != np.roll(neg, -1, axis=1)                  # side k: corners k, k+1
+    tri = faces[f]
+    n = len(xy)
+    pts, keys = [], []
+    for which in (0, 1):
+        k = np.argmax(cross, axis=1) if which == 0 else 2 - np.argmax(cross[:, ::-1], axis=1)
+        idx = np.arange(len(f))
+        a, b = tri[idx, k], tri[idx, (k + 1) % 3]
+        ua, ub = uu[idx, k], uu[idx, (k + 1) % 3]
+        t = ua / (ua - ub)
+        pts.append(xy[a] + (xy[b] - xy[a]) * t[:, None])
+        # The same point seen from the triangle across the side: measured from the
+        # smaller vertex id, rounded well below a micrometre.
+        tt = np.where(a < b, t, 1 - t)
+        keys.append((np.minimum(a, b) * n + np.maximum(a, b)) * 2 ** 20
+                    + np.rint(tt * (2 ** 20 - 1)).astype(np.int64))
+    return np.stack(pts, axis=1), np.stack(keys, axis=1), f
+
+
+def chain(keys):
+    """Join segments that share end points into polylines (either direction).
+
+    Returns a list of (points as a list of (segment, end) steps, closed)."""
+    s = len(keys)
+    flat = keys.ravel()
+    order = np.argsort(flat, kind="stable")
+    sk = flat[order]
+    same = np.flatnonzero(sk[1:] == sk[:-1])
+    partner = np.full(2 * s, -1, dtype=np.int64)
+    partner[order[same]] = order[same + 1]
+    partner[order[same + 1]] = order[same]
+    partner = partner.tolist()
+    seen = bytearray(s)
+    out = []
+    ends = [e for e in range(2 * s) if partner[e] < 0]
+    for start_end in ends + list(range(0, 2 * s, 2)):
+        seg = start_end // 2
+        if seen[seg]:
+            continue
+        steps, e, closed = [], start_end, False
+        while True:
+            seg = e // 2
+            seen[seg] = 1
+            steps.append((seg, e % 2))                       # enter at end e % 2
+            other = e ^ 1
+            nxt = partner[other]
+            if nxt < 0:
+                break
+            if seen[nxt // 2]:
+                closed = nxt // 2 == steps[0][0]
+                break
+            e = nxt
+        out.append((steps, closed))
+    return out
+
+
+def plan_stripes(xy, faces, direction, sigma, width_mm):
+    """Paths along ``direction`` ((m, 2) unit per face), a path width apart.
+
+    Returns (chains: list of ((k, 2) points mm, (k - 1,) sigma, closed), mask of the
+    triangles that hold paths)."""
+    d = np.asarray(direction, dtype=float)
+    normal = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    phase, X = stripe_phase(xy, faces, normal, width_mm)
+    u, ok = corner_phases(xy, faces, phase, X, width_mm)
+    pts, keys, face = stripe_segments(xy, faces, u, ok)
+    chains = []
+    for steps, closed in chain(keys):
+        seq = [pts[seg, entry] for seg, entry in steps] + [pts[steps[-1][0], 1 - steps[-1][1]]]
+        p = np.asarray(seq)
+        sg = np.asarray([sigma[face[seg]] for seg, _ in steps], dtype=float)
+        if closed:
+            p, sg = p[:-1], sg
+        chains.append((p, sg, closed))
+    return chains, ok
+
+
+def direction_angles(points, xy, faces, direction):
+    """Angle (degrees) between each path segment and the print direction of the triangle
+    its midpoint lies in, and the segment lengths: two (s,) arrays."""
+    from scipy.spatial import cKDTree
+    seg = [np.asarray(p) for p in points]
+    a = np.concatenate([p[:-1] for p in seg])
+    b = np.concatenate([p[1:] for p in seg])
+    mid = (a + b) / 2
+    cen = np.asarray(xy)[faces].mean(axis=1)
+    _, f = cKDTree(cen).query(mid)
+    t = b - a
+    length = np.linalg.norm(t, axis=1)
+    cos = np.abs(np.einsum("sc,sc->s", t, direction[f])) / np.maximum(length, 1e-12)
+    return np.degrees(np.arccos(np.clip(cos, 0, 1))), length
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _edge_weights(xy, faces, E):
+    """Cotangent weights, kept positive (obtuse corners would make the problem indefinite)."""
+    P = xy[faces]
+    w = np.zeros(len(E))
+    key = E[:, 0] * len(xy) + E[:, 1]
+    for k in range(3):
+        a, b, c = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]
+        u, v = P[:, k] - P[:, (k + 2) % 3], P[:, (k + 1) % 3] - P[:, (k + 2) % 3]
+        cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+        cot = np.einsum("mc,mc->m", u, v) / np.maximum(cross, 1e-12)
+        q = np.minimum(a, b) * len(xy) + np.maximum(a, b)
+        np.add.at(w, np.searchsorted(key, q), 0.5 * cot)
+        del c
+    return np.maximum(w, 1e-3 * max(float(np.median(np.abs(w))), 1e-12))
+
+
+def _vertex_areas(xy, faces):
+    P = xy[faces]
+    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    return np.bincount(faces.ravel(), np.repeat(area / 3, 3), len(xy))
+
+
+def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
+                     merge_sigma=0.005, link_factor=1.6):
+    """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: the stripes chained
+    into traces by short hops, as the isoline method's paths are, each segment carrying
+    the shrink of the triangle it crosses; the report adds ``direction_angle_deg``."""
+    import shapely
+    from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
+                                        boundary_loop)
+    from pipeline.paths.stats import _weighted_percentiles, path_metrics
+    xy = np.asarray(xy, dtype=float)
+    chains, ok = plan_stripes(xy, faces, direction, sigma, width_mm)
+    raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
+    outline = _outline_polygon(xy, boundary_loop(faces))
+    footprint = outline.buffer(0.25 * width_mm)
+    shapely.prepare(footprint)
+    children = [[] for _ in chains]
+    traces, tsig = _order_traces(chains, children, width_mm * link_factor, merge_angle_deg,
+                                 merge_sigma, footprint)
+    info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm)
+    ang, length = direction_angles([p for p, _ in raw], xy, faces, direction)
+    info["direction_angle_deg"] = dict(zip(("p50", "p95"),
+                                           _weighted_percentiles(ang, length, [50, 95])))
+    info["pathless_triangles"] = int((~ok).sum())
+    return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)

@@ -1,0 +1,80 @@
+"""Stripe-pattern tool paths along a direction field: spacing, coverage, direction, and
+each segment's shrink from the triangle it crosses."""
+
+import numpy as np
+import pytest
+from scipy.spatial import Delaunay
+
+from pipeline.paths.stripes import plan_stripes, stripe_toolpaths
+
+WIDTH = 0.5
+
+
+def _disk(radius=30.0, h=1.0, seed=0):
+    rng = np.random.default_rng(seed)
+    pts = [np.zeros((1, 2))]
+    for r in np.arange(h, radius + 1e-9, h):
+        k = max(int(2 * np.pi * r / h), 3)
+        a = np.linspace(0, 2 * np.pi, k, endpoint=False) + rng.uniform(0, 1)
+        pts.append(np.c_[r * np.cos(a), r * np.sin(a)])
+    pts = np.vstack(pts)
+    faces = Delaunay(pts).simplices
+    P = pts[faces]
+    cross = ((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+             - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    faces[cross < 0] = faces[cross < 0][:, [0, 2, 1]]
+    return pts, faces
+
+
+def _field(kind, c):
+    if kind == "circles":          # one +1 singular point: concentric paths
+        d = np.stack([-c[:, 1], c[:, 0]], 1)
+    elif kind == "turn":           # turns by 90 degrees across the sheet
+        a = (c[:, 0] + 30) / 60 * np.pi / 2
+        d = np.stack([np.cos(a), np.sin(a)], 1)
+    else:                          # two +1/2 singular points at (-10, 0) and (10, 0)
+        z = ((c[:, 0] - 10) + 1j * c[:, 1]) * ((c[:, 0] + 10) + 1j * c[:, 1])
+        d = np.stack([np.cos(np.angle(z) / 2), np.sin(np.angle(z) / 2)], 1)
+    return d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+
+
+def _plan(kind):
+    xy, faces = _disk()
+    d = _field(kind, xy[faces].mean(axis=1))
+    return stripe_toolpaths(xy, faces, d, np.full(len(faces), 0.2), WIDTH).info
+
+
+@pytest.mark.parametrize("kind", ["circles", "turn", "two_half"])
+def test_paths_are_a_path_width_apart(kind):
+    s = _plan(kind)["spacing_mm"]
+    assert 0.8 * WIDTH <= s["p05"] and s["p95"] <= 1.2 * WIDTH, s
+
+
+@pytest.mark.parametrize("kind", ["circles", "turn"])
+def test_paths_cover_the_sheet(kind):
+    info = _plan(kind)
+    assert info["coverage"] > 0.95 and info["overlap"] < 0.05, info
+
+
+@pytest.mark.xfail(strict=True, reason="around two +1/2 singular points the stripes fork in "
+                   "about 280 of 5600 triangles, which then hold no path: coverage 0.895")
+def test_paths_cover_a_sheet_with_two_half_singularities():
+    assert _plan("two_half")["coverage"] > 0.95
+
+
+def test_concentric_paths_follow_the_direction():
+    info = _plan("circles")
+    assert info["direction_angle_deg"]["p95"] < 5.0 and info["traces"] <= 5
+
+
+def test_each_segment_carries_the_shrink_of_its_triangle():
+    xy, faces = _disk()
+    c = xy[faces].mean(axis=1)
+    sigma = 0.05 + 0.25 * (c[:, 0] + 30) / 60
+    chains, _ = plan_stripes(xy, faces, _field("turn", c), sigma, WIDTH)
+    tri = Delaunay(xy)                 # the same triangles, in the same order
+    assert len(chains) > 50
+    for p, sg, closed in chains:
+        q = np.vstack([p, p[:1]]) if closed else p
+        f = tri.find_simplex((q[1:] + q[:-1]) / 2)
+        assert np.all(f >= 0) and np.array_equal(sg, sigma[f])
