@@ -100,9 +100,15 @@ def write_outputs(st, plan):
     plyio.write_ply(st.path(name + ".simulated.ply"), sim.vertices, mesh.faces,
                     vertex_colors=colors)
     diameter = plan.report["heightfield"]["longest_diameter_mm"]
-    st.write_image(name + ".stress.png", render.stress_image(
-        flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
-        title="%s: flat layout, shrink per printing edge" % name))
+    if hasattr(flat, "direction"):
+        pts, ticks, sig = render.direction_ticks(flat.xy, mesh.faces, flat.direction, flat.sigma)
+        st.write_image(name + ".stress.png", render.stress_image(
+            pts, ticks, sig, lim.s_min, lim.s_max, faces=mesh.faces,
+            title="%s: flat layout, shrink and print direction per triangle" % name))
+    else:
+        st.write_image(name + ".stress.png", render.stress_image(
+            flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
+            title="%s: flat layout, shrink per printing edge" % name))
     st.write_image(name + ".preview.png", render.preview_image(
         mesh.vertices, mesh.faces, sim.vertices, disp,
         title="%s (%.0f mm): target vs. simulated after shrinking" % (name, diameter)))

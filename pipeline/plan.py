@@ -1,7 +1,9 @@
 """The flatten-and-plan pipeline, stage by stage, with timing and the report.
 
 ``plan_file`` runs: load -> validate (fill pits) -> simplify (terrain
-topology) -> mesh -> flatten -> simulate -> tool paths, and returns a :class:`Plan` holding
+topology) -> mesh -> flatten -> simulate -> tool paths, by the profile's layout method
+(``flatten.method``: ``isoline``, the paper's, or ``free``, a print direction per
+triangle), and returns a :class:`Plan` holding
 every intermediate result and the ``report`` dict whose keys other tools read
 (see the README; add keys freely, never rename).
 """
@@ -13,15 +15,19 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import __version__
+from pipeline.geometry import signed_areas_2d
 from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
-from pipeline.layout.isoline import SIGMA_TOL, flatten
-from pipeline.geometry import signed_areas_2d
-from pipeline.meshing.isoline import build_mesh
 from pipeline.input.simplify import simplify
-from pipeline.simulation.forward import simulate
-from pipeline.paths.isoline import plan_toolpaths
 from pipeline.input.validate import validate
+from pipeline.layout.free import flatten_free
+from pipeline.layout.isoline import SIGMA_TOL, flatten
+from pipeline.meshing.grid import build_grid_mesh
+from pipeline.meshing.isoline import build_mesh
+from pipeline.paths.isoline import plan_toolpaths
+from pipeline.paths.stripes import stripe_toolpaths
+from pipeline.simulation.forward import simulate
+from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
 
 
 @dataclass
@@ -102,6 +108,33 @@ def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
     return problems
 
 
+# Above this share of the sheet the free layout's plan warns (the target: 2 %).
+INVALID_AREA_WARN = 0.02
+
+
+def free_layout_problems(flat, fold_fraction):
+    """What is wrong with a free-direction layout, as report problems (code, message, fix)."""
+    problems = []
+    if flat.flipped:
+        problems.append({
+            "code": "flatten.overlap" if fold_fraction > FOLD_LIMIT else "flatten.small_fold",
+            "message": "the flattened layout folds over itself (%d flipped triangles, %.3f %% "
+                       "of the sheet)" % (flat.flipped, 100 * fold_fraction),
+            "fix": "raise smooth_mm in the sidecar, or lower the relief (height_mm)"})
+    if flat.invalid_area_fraction > INVALID_AREA_WARN:
+        problems.append({
+            "code": "flatten.invalid_area",
+            "message": "%.1f %% of the sheet needs a map the material cannot make (%.1f %% "
+                       "would have to stretch, %.1f %% shrink more than it can or in two "
+                       "directions at once)" % (100 * flat.invalid_area_fraction,
+                                                100 * flat.stretch_area_fraction,
+                                                100 * flat.overshrink_area_fraction),
+            "fix": "the slopes are steeper than a sheet that shrinks at most by s_max can "
+                   "form: lower the relief (height_mm in the sidecar) or smooth it "
+                   "(smooth_mm); NAME.stress.png shows where"})
+    return problems
+
+
 def simulation_problems(sim):
     """A warning when the forward simulation stopped before the sheet came to rest.
 
@@ -163,6 +196,17 @@ def plan_file(path, profile, progress=None):
     timing["validate"] = time.perf_counter() - t
     result.hf = hf
 
+    if profile.flatten.method == "free":
+        _free_sheet(result, hf, profile, stage, timing)
+    else:
+        _isoline_sheet(result, hf, profile, path, stage, timing)
+    timing["total"] = time.perf_counter() - t_all
+    result.report = _report(path, profile, result, vrep, srep, timing)
+    return result
+
+
+def _isoline_sheet(result, hf, profile, path, stage, timing):
+    """The paper's method: isoline mesh, isoline layout, paths along the isolines."""
     mp = profile.mesh
     t = stage("mesh", "isolines every %.3g mm, gradient lines every %.3g mm"
               % (mp.isoline_step_mm, mp.gradient_spacing_mm))
@@ -201,18 +245,53 @@ def plan_file(path, profile, progress=None):
     timing["simulate"] = time.perf_counter() - t
 
     t = stage("toolpath", "paths %.3g mm wide" % profile.path_width_mm)
-    # Bed coordinates: the layout's bounding box centred on the bed, so the tool
-    # paths, the G-code and the screen-print marks all share one frame.
-    lo, hi = flat.xy.min(axis=0), flat.xy.max(axis=0)
-    result.xy_bed = flat.xy - (lo + hi) / 2.0 + np.asarray(profile.bed_mm, float) / 2.0
+    result.xy_bed = _on_bed(flat.xy, profile)
     tp = profile.toolpath
     result.toolpaths = plan_toolpaths(
         result.xy_bed, mesh.faces, mesh.vertex_level, mesh.printing_edges, flat.sigma,
         profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg, merge_sigma=tp.merge_sigma)
     timing["toolpath"] = time.perf_counter() - t
-    timing["total"] = time.perf_counter() - t_all
-    result.report = _report(path, profile, result, vrep, srep, timing)
-    return result
+
+
+def _free_sheet(result, hf, profile, stage, timing):
+    """The free print direction: a plain mesh, a layout whose direction each triangle
+    chooses, the thin-shell simulation of that sheet, and stripe paths along it."""
+    mp, fp, lim = profile.mesh, profile.flatten, profile.shrink_limits
+    t = stage("mesh", "a plain triangulation every %.3g mm" % mp.grid_mm)
+    mesh = build_grid_mesh(hf, mp.grid_mm)
+    result.mesh = mesh
+    timing["mesh"] = time.perf_counter() - t
+    t = stage("flatten", "%d triangles, free direction, up to %d iterations"
+              % (len(mesh.faces), fp.free_iterations))
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=fp.free_iterations)
+    result.flat = flat
+    timing["flatten"] = time.perf_counter() - t
+    result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
+    result.problems += free_layout_problems(flat, result.fold_fraction)
+    t = stage("simulate", "forward simulation of the flat sheet (thin shell)")
+    sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
+    rest = directional_rest(flat.xy, mesh.faces, flat.direction, sigma)
+    thick = thickness_for(sigma, profile.shrink_curve, profile.layers,
+                          profile.thickness_mm.min, profile.thickness_mm.max)
+    sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick)
+    result.sim = sim
+    result.problems += simulation_problems(sim)
+    timing["simulate"] = time.perf_counter() - t
+    t = stage("toolpath", "stripes %.3g mm wide along the print direction"
+              % profile.path_width_mm)
+    result.xy_bed = _on_bed(flat.xy, profile)
+    tp = profile.toolpath
+    result.toolpaths = stripe_toolpaths(result.xy_bed, mesh.faces, flat.direction, sigma,
+                                        profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
+                                        merge_sigma=tp.merge_sigma)
+    timing["toolpath"] = time.perf_counter() - t
+
+
+def _on_bed(xy, profile):
+    """Bed coordinates: the layout's bounding box centred on the bed, so the tool paths,
+    the G-code and the screen-print marks all share one frame."""
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    return xy - (lo + hi) / 2.0 + np.asarray(profile.bed_mm, float) / 2.0
 
 
 def _json_ready(d):
@@ -254,10 +333,10 @@ def _report(path, profile, p, vrep, srep, timing):
             "triangles": int(len(mesh.faces)),
             "printing_edges": int(len(mesh.printing_edges)),
             "bridge_edges": int(len(mesh.bridge_edges)),
-            "isolines": int(mesh.info["isolines"]),
-            "open_isolines": int(mesh.info["open_isolines"]),
-            "saddles": int(mesh.info["saddles"]),
-            "peaks": int(mesh.info["peaks"]),
+            "isolines": int(mesh.info.get("isolines", 0)),
+            "open_isolines": int(mesh.info.get("open_isolines", 0)),
+            "saddles": int(mesh.info.get("saddles", 0)),
+            "peaks": int(mesh.info.get("peaks", 0)),
         },
         "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])],
                         fold_area_fraction=p.fold_fraction),

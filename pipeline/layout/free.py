@@ -132,7 +132,7 @@ def violation(J, lam_lo, lam_hi, tol=INVALID_TOL):
 
 
 def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy=None,
-                 smooth_free_below=0.02):
+                 smooth_free_below=0.05):
     """Lay the target ``mesh`` flat with a free print direction per triangle.
 
     Parameters
@@ -203,28 +203,32 @@ def _jacobians(G, X, m):
     return np.transpose((G @ X).reshape(m, 2, 2), (0, 2, 1))
 
 
-def smooth_free_directions(d, sigma, faces, below, rounds=20):
-    """Where ``sigma < below`` the print direction is free: replace it, a few Jacobi
-    rounds, by its neighbours' (as a line field: doubled angles averaged), so that paths
-    do not turn on rounding noise. d : (m, 2) unit; returns (m, 2)."""
-    free = sigma < below
-    if not free.any() or free.all():
-        return d
+def smooth_free_directions(d, sigma, faces, below, anchor=10.0):
+    """Make the print direction smooth where the sheet leaves it free.
+
+    Where ``sigma`` is small the layout barely stretches and any direction prints the
+    same sheet; left as the solver found it, it turns on rounding noise and the stripes
+    fork there. One sparse solve over the triangles' neighbour graph (as a line field:
+    doubled angles) keeps each direction where ``sigma >= below`` and lets the others
+    follow their neighbours: minimises sum over neighbours |z_f - z_g|^2 + sum over
+    triangles w_f |z_f - z0_f|^2, w_f = anchor * min(sigma_f / below, 1)^2.
+    d : (m, 2) unit; returns (m, 2).
+    """
     from pipeline.mechanics.constraints import topology
+    m = len(d)
+    w = anchor * np.clip(np.asarray(sigma, dtype=float) / below, 0.0, 1.0) ** 2
+    if np.all(w >= anchor) or not np.any(w > 0):
+        return d
     top = topology(faces)
-    f0, f1 = top.edge_faces[top.hinge_edge].T
-    z = np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
-    weight = np.where(free, 0.0, np.maximum(sigma, 0.0))
-    for _ in range(rounds):
-        acc = np.zeros(len(d), complex)
-        np.add.at(acc, f0, z[f1] * (weight[f1] + 1e-3))
-        np.add.at(acc, f1, z[f0] * (weight[f0] + 1e-3))
-        upd = free & (np.abs(acc) > 0)
-        z[upd] = acc[upd] / np.abs(acc[upd])
+    f0, f1 = top.hinge_faces.T
+    adj = sp.coo_matrix((np.ones(len(f0)), (f0, f1)), shape=(m, m))
+    adj = (adj + adj.T).tocsr()
+    L = sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
+    z0 = np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
+    lu = splu((L + sp.diags(w + 1e-9)).tocsc())
+    z = lu.solve(w * z0.real) + 1j * lu.solve(w * z0.imag)
     ang = np.angle(z) / 2
-    out = d.copy()
-    out[free] = np.stack([np.cos(ang[free]), np.sin(ang[free])], axis=1)
-    return out
+    return np.stack([np.cos(ang), np.sin(ang)], axis=1)
 
 
 def _invalid_edges_along(J, d, X, faces, lam_lo, lam_hi, tol=INVALID_TOL):

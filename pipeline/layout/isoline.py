@@ -97,7 +97,8 @@ class FlatResult:
 
     def report(self):
         """The ``flatten`` section of ``NAME.report.json``."""
-        return {"iterations": int(self.iterations), "converged": bool(self.converged),
+        return {"method": "isoline",
+                "iterations": int(self.iterations), "converged": bool(self.converged),
                 "max_abs_z_mm": float(self.max_abs_z_mm),
                 "flipped_triangles": int(self.flipped_triangles),
                 "overlapping": bool(self.overlapping),

@@ -188,6 +188,24 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     return plan.tag(fig, bxy)
 
 
+def direction_ticks(xy, faces, direction, sigma, length_fraction=0.7):
+    """Short strokes along each triangle's print direction, through its centroid, for
+    :func:`stress_image` of a free-direction layout.
+
+    Returns (points (n + 2m, 2) mm: ``xy`` then the strokes' ends, edges (m, 2) int,
+    sigma (m,)): the strokes as "printing edges" coloured by their triangle's shrink.
+    """
+    xy = np.asarray(xy, dtype=float)[:, :2]
+    P = xy[faces]
+    c = P.mean(axis=1)
+    size = np.sqrt(face_areas(xy, faces))
+    half = (0.5 * length_fraction * size)[:, None] * np.asarray(direction, dtype=float)
+    n, m = len(xy), len(faces)
+    pts = np.concatenate([xy, c - half, c + half])
+    edges = np.stack([n + np.arange(m), n + m + np.arange(m)], axis=1)
+    return pts, edges, np.asarray(sigma, dtype=float)
+
+
 def _as_segments(paths):
     """Polylines (list of (k, 2)) or an (t, 2, 2) array -> (p0, p1) each (s, 2)."""
     if paths is None:

@@ -111,12 +111,16 @@ class MeshParams:
     min_prominence_mm: float = _num(2.0, strict=False)
     smooth_mm: float = _num(1.0, strict=False)
     l_sim_mm: float = _num(2.0, strict=False)
+    grid_mm: float = _num(1.0)
 
 
 @dataclass(frozen=True)
 class FlattenParams:
-    """Projective-dynamics iterations and constraint weights (paper 6.2 defaults)."""
+    """The layout method; projective-dynamics iterations and constraint weights of the
+    isoline method (paper 6.2 defaults); local/global iterations of the free one."""
+    method: str = _str("isoline", choices=("isoline", "free"))
     iterations: int = _num(50, integer=True)
+    free_iterations: int = _num(200, integer=True)
     w_bridge: float = _num(1.0, strict=False)
     w_printing: float = _num(1.0, strict=False)
     w_bending: float = _num(0.025, strict=False)

@@ -1,0 +1,44 @@
+"""A whole plan with the free print direction: a saddle the paper's method cannot form
+is laid out, simulated, given stripe paths and G-code, and reported by method."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hostd import planner
+from pipeline.input import shapes
+from pipeline.profiles.profile import load_profile
+
+
+@pytest.fixture(scope="module")
+def saddle_plan(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("free")
+    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=12.0)
+    np.save(tmp / "saddle.npy", hf.z)
+    (tmp / "saddle.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
+    prof = load_profile("generic-0.5mm")
+    prof = dataclasses.replace(prof, flatten=dataclasses.replace(prof.flatten, method="free"))
+    return planner.run(tmp / "saddle.npy", prof, tmp / "out"), tmp / "out"
+
+
+def test_the_free_method_plans_a_saddle_end_to_end(saddle_plan):
+    plan, out = saddle_plan
+    r = plan.report
+    assert r["flatten"]["method"] == "free" and r["flatten"]["flipped_triangles"] == 0
+    assert r["flatten"]["invalid_area_fraction"] < 0.02
+    assert set(r["flatten"]["invalid_area"]) == {"would_stretch", "would_shrink_too_much"}
+    assert r["printable"] and (out / "saddle.gcode").stat().st_size > 0
+    tp = r["toolpath"]
+    assert tp["coverage"] > 0.9 and "direction_angle_deg" in tp and "isoline_angle_deg" not in tp
+    assert r["gcode"]["layers"] == plan.profile.layers
+    for name in ("stress", "toolpath", "preview", "input"):
+        assert (out / ("saddle.%s.png" % name)).exists()
+
+
+def test_the_isoline_method_says_so(tmp_path):
+    hf = shapes.dome(diameter_mm=30.0, height_mm=6.0)
+    np.save(tmp_path / "d.npy", hf.z)
+    (tmp_path / "d.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
+    plan = planner.run(tmp_path / "d.npy", load_profile("generic-0.5mm"), tmp_path / "out")
+    assert plan.report["flatten"]["method"] == "isoline"
