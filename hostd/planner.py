@@ -71,7 +71,7 @@ def write_outputs(st, plan):
     tp = plan.toolpaths
     t = time.perf_counter()
     stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(name + ".gcode"), name=name,
-                              center=False)
+                              center=False, deltas=_segment_deltas(plan))
     if not plan.printable:
         _mark_not_printable(st.path(name + ".gcode"), plan.problems)
     timing["gcode"] = round(time.perf_counter() - t, 4)
@@ -118,6 +118,23 @@ def write_outputs(st, plan):
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed)" % (name, count),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+
+
+def _segment_deltas(plan):
+    """The bilayer of each tool-path segment (the program of the triangle it crosses,
+    found by its midpoint's nearest triangle centre), or None without a program."""
+    prog = getattr(plan, "curvature", None)
+    if prog is None:
+        return None
+    from scipy.spatial import cKDTree
+    centres = plan.xy_bed[plan.mesh.faces].mean(axis=1)
+    tree = cKDTree(centres)
+    out = []
+    for p in plan.toolpaths.traces:
+        p = np.asarray(p, dtype=float)
+        _, f = tree.query((p[1:] + p[:-1]) / 2)
+        out.append(prog.delta_sigma[f])
+    return out
 
 
 def _mark_not_printable(path, problems):

@@ -20,6 +20,7 @@ from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
 from pipeline.input.simplify import simplify
 from pipeline.input.validate import validate
+from pipeline.layout import curvature
 from pipeline.layout.free import flatten_free
 from pipeline.layout.isoline import SIGMA_TOL, flatten
 from pipeline.meshing.grid import build_grid_mesh
@@ -45,6 +46,7 @@ class Plan:
     xy_bed: object = None
     toolpaths: object = None
     simplified: dict = field(default_factory=dict)
+    curvature: object = None
     problems: list = field(default_factory=list)
     fold_fraction: float = 0.0
     report: dict = field(default_factory=dict)
@@ -108,6 +110,9 @@ def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
     return problems
 
 
+# The programmed sheet's start: a small bump the way the program rises (from exactly
+# flat a sheet can creep, wrinkled, for hundreds of iterations before it pops).
+BATH_BUMP = 0.02
 # Above this share of the sheet the free layout's plan warns (the target: 2 %).
 INVALID_AREA_WARN = 0.02
 
@@ -273,7 +278,13 @@ def _free_sheet(result, hf, profile, stage, timing):
     rest = directional_rest(flat.xy, mesh.faces, flat.direction, sigma)
     thick = thickness_for(sigma, profile.shrink_curve, profile.layers,
                           profile.thickness_mm.min, profile.thickness_mm.max)
-    sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick)
+    # Curvature through the layers: the lower layers shrink more where the target
+    # rises, so bending pulls toward the target instead of toward flat.
+    result.curvature = curvature.program(
+        curvature.along_print_direction(hf, mesh, flat), mesh.faces, flat.xy, flat.direction,
+        sigma, thick, lim.s_min, lim.s_max)
+    sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick,
+                         theta_rest=result.curvature.theta_rest, pop=BATH_BUMP)
     result.sim = sim
     result.problems += simulation_problems(sim)
     timing["simulate"] = time.perf_counter() - t
@@ -344,6 +355,7 @@ def _report(path, profile, p, vrep, srep, timing):
             sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9))),
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
+        **({"curvature": p.curvature.report()} if p.curvature is not None else {}),
         "printable": p.printable,
         "warnings": list(p.problems),
     }

@@ -60,3 +60,24 @@ def test_a_column_count_that_is_neither_one_nor_the_layers_is_refused():
         write_thickness_gcode([np.c_[[0.0, 1.0], [0.0, 0.0]]], [np.full((1, 4), 0.2)],
                               settings, io.StringIO())
     assert err.value.code == "gcode.bad_input"
+
+
+def test_a_bilayer_prints_its_lower_layers_at_the_larger_shrink():
+    """delta > 0: the lower half of the layers shrinks by sigma + delta / 2, so it is
+    printed thinner than the upper half (thinner layers shrink more)."""
+    from pipeline.gcode.writer import write_gcode
+    trace = [np.c_[np.linspace(0, 20, 21), np.full(21, 1.0)]]
+    buf = io.StringIO()
+    write_gcode(trace, [np.full(20, 0.2)], PROFILE, buf, deltas=[np.full(20, 0.08)])
+    parsed = parse(buf.getvalue())
+    height = {}
+    for layer in range(1, PROFILE.layers + 1):
+        zs = sorted({round(m.end[2], 3) for m in parsed.layer_moves(layer) if m.extruding})
+        height[layer] = zs[0]
+    steps = np.diff([0.0] + [height[k] for k in sorted(height)])
+    lower, upper = steps[:PROFILE.layers // 2], steps[-(PROFILE.layers // 2):]
+    assert np.all(lower < upper)
+    theta_lo = PROFILE.shrink_curve.theta(np.array([0.24]))[0][0]
+    theta_hi = PROFILE.shrink_curve.theta(np.array([0.16]))[0][0]
+    assert lower[0] == pytest.approx(theta_lo, abs=1e-3)
+    assert upper[0] == pytest.approx(theta_hi, abs=1e-3)

@@ -32,6 +32,9 @@ def test_the_free_method_plans_a_saddle_end_to_end(saddle_plan):
     tp = r["toolpath"]
     assert tp["coverage"] > 0.9 and "direction_angle_deg" in tp and "isoline_angle_deg" not in tp
     assert r["gcode"]["layers"] == plan.profile.layers
+    # The curvature program is printed: the lower layers of a rising region are thinner.
+    assert plan.curvature is not None and np.abs(plan.curvature.delta_sigma).max() > 0
+    assert "curvature" in r and 0 <= r["curvature"]["limited_fraction"] <= 1
     for name in ("stress", "toolpath", "preview", "input"):
         assert (out / ("saddle.%s.png" % name)).exists()
 

@@ -225,7 +225,7 @@ def thickness_for_sigma(sigmas, settings):
     return np.clip(theta, lo, hi), clamped
 
 
-def write_gcode(traces, sigmas, profile, out, name="part", center=True):
+def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=None):
     """Write thickness-varying G-code for tool-path traces (paper 6.4).
 
     Parameters
@@ -241,6 +241,10 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True):
         Job name for the header.
     center : bool
         Translate the layout's bounding-box centre to the bed centre.
+    deltas : list of (k_i - 1,) float, optional
+        A bilayer per segment: the lower half of the layers shrinks by ``sigma +
+        delta / 2``, the upper half by ``sigma - delta / 2`` (a middle layer by
+        ``sigma``), so the sheet curls away from its lower side where delta > 0.
 
     Returns
     -------
@@ -256,13 +260,30 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True):
                         code="gcode.bad_input", fix="give one sigma array per trace")
     flat = np.concatenate([np.asarray(s, dtype=float).reshape(-1) for s in sigmas]
                           + [np.zeros(0)])
-    theta, clamped = thickness_for_sigma(flat, settings)
     parts = np.cumsum([np.asarray(s).size for s in sigmas])[:-1]
+    if deltas is None:
+        theta, clamped = thickness_for_sigma(flat, settings)
+    else:
+        delta = np.concatenate([np.asarray(s, dtype=float).reshape(-1) for s in deltas]
+                               + [np.zeros(0)])
+        theta, clamped = _bilayer_thickness(flat, delta, settings)
     thetas = np.split(theta, parts)
     return write_thickness_gcode(traces, thetas, settings, out, name=name, center=center,
                                  arc_values=np.split(flat, parts),
                                  arc_value_span=settings.merge_sigma,
                                  clamped_segments=int(clamped.sum()))
+
+
+def _bilayer_thickness(sigma, delta, settings):
+    """Thickness per segment and layer ((s, layers) mm) of a bilayer, and the clamped
+    segments: the lower half of the layers at ``sigma + delta / 2``, the upper half at
+    ``sigma - delta / 2``."""
+    layers = settings.layers
+    half = np.where(np.arange(layers) < layers // 2, 0.5,
+                    np.where(np.arange(layers) >= layers - layers // 2, -0.5, 0.0))
+    per_layer = sigma[:, None] + delta[:, None] * half[None, :]
+    theta, clamped = thickness_for_sigma(per_layer.ravel(), settings)
+    return theta.reshape(-1, layers), clamped.reshape(-1, layers).any(axis=1)
 
 
 def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=True,

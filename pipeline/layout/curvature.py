@@ -113,6 +113,22 @@ def isoline_tangents(derivs, points):
     return t / np.maximum(norm, 1e-12)[:, None]
 
 
+def along_print_direction(hf, mesh, flat):
+    """The target's normal curvature along each triangle's print direction: (m,) 1/mm.
+
+    The direction is given in the layout; the layout's Jacobian maps it back onto the
+    target's tangent plane, whose (x, y) part is what the height field is read along."""
+    V = np.asarray(mesh.vertices, dtype=float)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    P = np.asarray(flat.xy, dtype=float)[faces]
+    T = V[faces]
+    flat_sides = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2)      # (m, 2, 2)
+    target_sides = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=2)    # (m, 3, 2)
+    coef = np.linalg.solve(flat_sides, np.asarray(flat.direction, dtype=float)[:, :, None])
+    tangent = np.einsum("fij,fj->fi", target_sides, coef[:, :, 0])[:, :2]
+    return normal_curvature(surface_derivatives(hf), T.mean(axis=1)[:, :2], tangent)
+
+
 def program(kappa_target, faces, xy, direction, sigma, thickness_mm, s_min, s_max,
             c=BILAYER_C):
     """The bilayer program that brings the sheet's rest curvature closest to the target's.
