@@ -31,7 +31,7 @@ def output_names(name, color=False):
     return {k: "%s.%s" % (name, k) for k in kinds}
 
 
-def run(input_path, profile, outdir, progress=None):
+def run(input_path, profile, outdir, progress=None, force_fit=False):
     """Plan ``input_path`` into ``outdir``.
 
     Returns the :class:`pipeline.plan.Plan`. On a :class:`PipelineError`,
@@ -41,7 +41,7 @@ def run(input_path, profile, outdir, progress=None):
     outdir = Path(outdir)
     name = input_path.stem
     try:
-        plan = plan_file(input_path, profile, progress=progress)
+        plan = plan_file(input_path, profile, progress=progress, force_fit=force_fit)
         if progress:
             progress("write", "rendering pictures and writing outputs")
         t = time.perf_counter()
@@ -111,13 +111,22 @@ def write_outputs(st, plan):
             title="%s: flat layout, shrink per printing edge" % name))
     st.write_image(name + ".preview.png", render.preview_image(
         mesh.vertices, mesh.faces, sim.vertices, disp,
-        title="%s (%.0f mm): target vs. simulated after shrinking" % (name, diameter)))
+        title="%s (%.0f mm): target vs. simulated after shrinking%s" % (
+            name, diameter, _fit_note(plan))))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(name + ".input.png", hfimage.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed)" % (name, count),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+
+
+def _fit_note(plan):
+    fit = getattr(plan, "fit", None)
+    if fit is None or fit.applied_scale >= 1.0:
+        return ""
+    return " (relief lowered from %.1f to %.1f mm to form)" % (fit.requested_height_mm,
+                                                              fit.max_height_mm)
 
 
 def _segment_deltas(plan):

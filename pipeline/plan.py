@@ -21,6 +21,7 @@ from pipeline.input.sidecar import settings as sidecar_settings
 from pipeline.input.simplify import simplify
 from pipeline.input.validate import validate
 from pipeline.layout import curvature
+from pipeline.layout.fit import fit_height, scaled
 from pipeline.layout.free import flatten_free
 from pipeline.layout.isoline import SIGMA_TOL, flatten
 from pipeline.meshing.grid import build_grid_mesh
@@ -47,14 +48,16 @@ class Plan:
     toolpaths: object = None
     simplified: dict = field(default_factory=dict)
     curvature: object = None
+    fit: object = None
     problems: list = field(default_factory=list)
     fold_fraction: float = 0.0
     report: dict = field(default_factory=dict)
 
     @property
     def printable(self):
-        """False when a problem makes printing pointless (the layout folds)."""
-        return not any(p["code"] == "flatten.overlap" for p in self.problems)
+        """False when a problem makes printing pointless (the layout folds, or the relief
+        asked for cannot form)."""
+        return not any(p["code"] in BLOCKING for p in self.problems)
 
 
 STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
@@ -110,6 +113,8 @@ def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
     return problems
 
 
+# Problems after which a print is pointless.
+BLOCKING = ("flatten.overlap", "fit.too_high")
 # The programmed sheet's start: a small bump the way the program rises (from exactly
 # flat a sheet can creep, wrinkled, for hundreds of iterations before it pops).
 BATH_BUMP = 0.02
@@ -160,7 +165,7 @@ def simulation_problems(sim):
                     "estimate, and NAME.preview.png for where the sheet departs"}]
 
 
-def plan_file(path, profile, progress=None):
+def plan_file(path, profile, progress=None, force_fit=False):
     """Run the pipeline on one input file.
 
     Parameters
@@ -168,6 +173,7 @@ def plan_file(path, profile, progress=None):
     path : str or Path, the height field (image, array or mesh)
     profile : pipeline.profiles.profile.Profile
     progress : callable(stage, message), optional
+    force_fit : fit the relief (free method) even where the sidecar asks for a height
 
     Returns
     -------
@@ -202,7 +208,10 @@ def plan_file(path, profile, progress=None):
     result.hf = hf
 
     if profile.flatten.method == "free":
+        hf = _fitted(result, hf, profile, sidecar, opts, stage, timing, force_fit)
+        result.hf = hf
         _free_sheet(result, hf, profile, stage, timing)
+        _refuse_too_high(result, hf, profile, sidecar, opts, timing)
     else:
         _isoline_sheet(result, hf, profile, path, stage, timing)
     timing["total"] = time.perf_counter() - t_all
@@ -256,6 +265,59 @@ def _isoline_sheet(result, hf, profile, path, stage, timing):
         result.xy_bed, mesh.faces, mesh.vertex_level, mesh.printing_edges, flat.sigma,
         profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg, merge_sigma=tp.merge_sigma)
     timing["toolpath"] = time.perf_counter() - t
+
+
+def _height_asked(sidecar):
+    return sidecar is not None and (sidecar.height_mm is not None
+                                     or sidecar.height_scale is not None)
+
+
+def _fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
+    """Lower the relief to what forms when nobody asked for a height (it came from the
+    profile's defaults or the file's own units) and the sidecar allows it."""
+    mode = (sidecar.fit if sidecar is not None else None) or "auto"
+    if not force and (mode == "off" or _height_asked(sidecar)):
+        return hf
+    t = stage("fit", "how high the sheet can rise")
+    lim = profile.shrink_limits
+    result.fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
+                            fine_mm=profile.mesh.grid_mm,
+                            fine_iterations=profile.flatten.free_iterations)
+    timing["fit"] = time.perf_counter() - t
+    if result.fit.applied_scale < 1.0:
+        result.problems.append({
+            "code": "fit.lowered",
+            "message": "the relief was lowered from %.1f to %.1f mm (%.0f %%): %s" % (
+                result.fit.requested_height_mm, result.fit.max_height_mm,
+                100 * result.fit.applied_scale, result.fit.reason),
+            "fix": "nothing to do; to plan the full relief anyway write `fit: off` in the "
+                   "sidecar, or ask for a height there (%s)" % result.fit.sidecar_line()})
+        return scaled(hf, result.fit.applied_scale)
+    return hf
+
+
+def _refuse_too_high(result, hf, profile, sidecar, opts, timing):
+    """A relief the sidecar asked for that does not form is refused, with the sidecar
+    line that would make it form."""
+    if not (_height_asked(sidecar) and result.flat.invalid_area_fraction > INVALID_AREA_WARN):
+        return
+    t = time.perf_counter()
+    lim = profile.shrink_limits
+    result.fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
+                            fine_mm=profile.mesh.grid_mm,
+                            fine_iterations=profile.flatten.free_iterations)
+    result.fit.applied_scale = 1.0
+    result.fit.reason = "asked for in the sidecar; " + result.fit.reason
+    timing["fit"] = time.perf_counter() - t
+    result.problems.append({
+        "code": "fit.too_high",
+        "message": "the relief asked for (%.1f mm) does not form: %.1f %% of the sheet "
+                   "needs more than the material can do; at most %.1f mm forms" % (
+                       result.fit.requested_height_mm, 100 * result.flat.invalid_area_fraction,
+                       result.fit.max_height_mm),
+        "fix": "write `%s` in the sidecar %s (or remove its height to let hostd fit it)"
+               % (result.fit.sidecar_line(), Path(sidecar.source).name if sidecar.source
+                  else "")})
 
 
 def _free_sheet(result, hf, profile, stage, timing):
@@ -356,6 +418,7 @@ def _report(path, profile, p, vrep, srep, timing):
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         **({"curvature": p.curvature.report()} if p.curvature is not None else {}),
+        **({"fit": p.fit.report()} if p.fit is not None else {}),
         "printable": p.printable,
         "warnings": list(p.problems),
     }

@@ -18,6 +18,12 @@ def add_parser(sub):
                    help="printer profile name or YAML path (default: the sidecar's, "
                         "else generic-0.5mm)")
     p.add_argument("-o", "--outdir", default=".", help="output folder (default: .)")
+    p.add_argument("--method", choices=("isoline", "free"), default=None,
+                   help="layout method (default: the profile's flatten.method): isoline, the "
+                        "paper's, or free, a print direction per triangle")
+    p.add_argument("--fit", action="store_true",
+                   help="with the free method: fit the relief to what the material can form "
+                        "(even where the sidecar asks for a height) and print the scales tried")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress on stderr")
     p.set_defaults(func=run)
 
@@ -35,6 +41,24 @@ def _profile_name(args):
     return "generic-0.5mm"
 
 
+def _with_method(profile, args):
+    import dataclasses
+    method = "free" if args.fit and not args.method else args.method
+    if not method:
+        return profile
+    return dataclasses.replace(profile, flatten=dataclasses.replace(profile.flatten,
+                                                                    method=method))
+
+
+def _print_fit(fit):
+    print("relief scale  invalid area  flipped")
+    for scale, area, flipped in fit["tried"]:
+        print("%12.3f  %11.2f %%  %7d" % (scale, 100 * area, flipped))
+    print("fitted: %.1f mm of %.1f mm (scale %.3f), %d solves in %.1f s: %s" % (
+        fit["max_height_mm"], fit["requested_height_mm"], fit["applied_scale"], fit["solves"],
+        fit["seconds"], fit["reason"]))
+
+
 def run(args):
     from hostd import planner
 
@@ -48,8 +72,9 @@ def run(args):
 
     name = Path(args.input).stem
     try:
-        profile = load_profile(_profile_name(args))
-        plan = planner.run(args.input, profile, args.outdir, progress=progress)
+        profile = _with_method(load_profile(_profile_name(args)), args)
+        plan = planner.run(args.input, profile, args.outdir, progress=progress,
+                           force_fit=args.fit)
     except PipelineError as exc:
         print("hostd plan: error %s: %s" % (exc.code, exc.text()), file=sys.stderr)
         if exc.code.startswith("profile."):
@@ -58,6 +83,8 @@ def run(args):
               file=sys.stderr)
         return 2
     r = plan.report
+    if args.fit and "fit" in r:
+        _print_fit(r["fit"])
     for w in r.get("warnings", []):
         print("hostd plan: warning %s: %s. Fix: %s" % (w["code"], w["message"], w["fix"]),
               file=sys.stderr)

@@ -27,6 +27,7 @@ class Sidecar:
     min_prominence_mm : smallest peak kept by simplification, mm (overrides the profile)
     smooth_mm : smoothing scale before meshing, mm (overrides the profile)
     copies : how many sheets to print (>= 1); priority : queue priority (daemon)
+    fit : ``auto`` or ``off``: lower the relief to what forms (free layout method)
     source : the sidecar file, or None when there is none
     """
 
@@ -38,6 +39,7 @@ class Sidecar:
     max_fill_mm: float = None
     min_prominence_mm: float = None
     smooth_mm: float = None
+    fit: str = None
     copies: int = 1
     priority: int = 0
     source: str = None
@@ -48,7 +50,7 @@ _SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
                    "height_mm": ("float", True), "height_scale": ("float", True),
                    "profile": ("str", False), "max_fill_mm": ("float", False),
                    "min_prominence_mm": ("float", False), "smooth_mm": ("float", False),
-                   "copies": ("int", True),
+                   "copies": ("int", True), "fit": ("str", False),
                    "priority": ("int", None)}
 
 
@@ -102,11 +104,17 @@ _PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
 def _sidecar_value(key, value, kind, positive, src):
+    if key == "fit" and isinstance(value, bool):
+        value = "auto" if value else "off"      # YAML reads a bare off as false
     if kind == "str":
         if not isinstance(value, str) or not value:
             raise InvalidSidecar("%s must be a non-empty string" % key,
                                  code="sidecar.type", file=src, where=key,
                                  fix="write e.g. `profile: generic-0.5mm`")
+        if key == "fit" and value not in ("auto", "off"):
+            raise InvalidSidecar("fit must be auto or off", code="sidecar.value", file=src,
+                                 where=key, fix="write `fit: auto` (lower the relief to what "
+                                 "forms) or `fit: off` (plan the relief as given)")
         if key == "profile" and (not _PROFILE_NAME.fullmatch(value)
                                  or value.endswith((".yaml", ".yml"))):
             raise InvalidSidecar("profile must be the name of a profile this node has, "

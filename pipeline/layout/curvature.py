@@ -113,7 +113,7 @@ def isoline_tangents(derivs, points):
     return t / np.maximum(norm, 1e-12)[:, None]
 
 
-def along_print_direction(hf, mesh, flat):
+def along_print_direction(hf, mesh, flat, smooth_mm=5.0):
     """The target's normal curvature along each triangle's print direction: (m,) 1/mm.
 
     The direction is given in the layout; the layout's Jacobian maps it back onto the
@@ -126,7 +126,7 @@ def along_print_direction(hf, mesh, flat):
     target_sides = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=2)    # (m, 3, 2)
     coef = np.linalg.solve(flat_sides, np.asarray(flat.direction, dtype=float)[:, :, None])
     tangent = np.einsum("fij,fj->fi", target_sides, coef[:, :, 0])[:, :2]
-    return normal_curvature(surface_derivatives(hf), T.mean(axis=1)[:, :2], tangent)
+    return normal_curvature(surface_derivatives(hf, smooth_mm), T.mean(axis=1)[:, :2], tangent)
 
 
 def program(kappa_target, faces, xy, direction, sigma, thickness_mm, s_min, s_max,

@@ -1,0 +1,136 @@
+"""How high a height field can be and still form: the largest relief the material allows.
+
+A sheet that loses at most ``s_max`` of its length in one direction cannot form slopes
+much steeper than ``acos(1 - s_max)`` (about 49 degrees for 34 %), nor regions that
+must shrink in two directions at once. Real elevation data is drawn with 20-40x
+vertical exaggeration, and its cliffs and scarps exceed that: a slightly lower relief
+prints, the asked-for one does not.
+
+:func:`fit_height` finds the largest height scale at which the free-direction layout
+leaves at most ``target`` of the sheet outside the admissible set, with no flips: a
+bound from the slopes, then a bisection of quick layout solves on a coarse mesh.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.geometry import HeightField
+from pipeline.layout.free import flatten_free
+from pipeline.meshing.grid import build_grid_mesh
+
+TARGET = 0.02
+
+
+@dataclass
+class Fit:
+    """The fit of one height field.
+
+    requested_height_mm : the relief as given; max_height_mm : the largest that forms;
+    applied_scale : the scale the plan uses (1 when the relief was kept); reason : why;
+    tried : [(scale, invalid area fraction, flipped triangles)] of every solve.
+    """
+
+    requested_height_mm: float
+    max_height_mm: float
+    applied_scale: float
+    smooth_mm: float
+    reason: str
+    tried: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    def report(self):
+        """The report's ``fit`` section."""
+        return {"max_height_mm": round(self.max_height_mm, 2),
+                "requested_height_mm": round(self.requested_height_mm, 2),
+                "applied_scale": round(self.applied_scale, 4), "smooth_mm": self.smooth_mm,
+                "reason": self.reason, "solves": len(self.tried),
+                "tried": [[round(s, 4), round(a, 4), int(f)] for s, a, f in self.tried],
+                "seconds": round(self.seconds, 2)}
+
+    def sidecar_line(self):
+        """The sidecar line that asks for the largest relief that forms."""
+        return "height_mm: %.1f" % (np.floor(self.max_height_mm * 10) / 10)
+
+
+def scaled(hf, scale):
+    """``hf`` with its relief (height above its lowest point) times ``scale``."""
+    z = np.asarray(hf.z, dtype=float)
+    base = np.nanmin(z)
+    return HeightField(base + (z - base) * scale, hf.pixel_mm, color=hf.color, source=hf.source)
+
+
+def slope_bound(hf, s_max, share=0.98):
+    """A scale under which the steepest slopes (the ``share`` percentile) stay below what
+    the material can form, ``acos(1 - s_max)``: a cheap start for the search."""
+    gy, gx = np.gradient(np.asarray(hf.z, dtype=float), hf.pixel_mm)
+    slope = np.hypot(gx, gy)
+    slope = slope[np.isfinite(slope)]
+    if not len(slope):
+        return 1.0
+    steep = float(np.percentile(slope, 100 * share))
+    limit = np.tan(np.arccos(1.0 - s_max))
+    return 1.0 if steep <= limit else limit / steep
+
+
+def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
+               iterations=100, steps=5, fine_mm=1.0, fine_steps=4, fine_iterations=200):
+    """The largest relief scale (<= 1) at which ``hf`` forms with the free layout.
+
+    hf : validated HeightField; grid_mm : the search's mesh spacing (default: an 80th of
+    the field's longest side, at least 2 mm: coarser than the plan's, and on the safe
+    side of it); steps : bisection solves after the bounds on that mesh; fine_mm,
+    fine_steps, fine_iterations : then a few on the plan's own mesh spacing and
+    iterations, up from the coarse answer, so the fit is the largest relief the plan
+    forms, not a coarse mesh's.
+    Returns :class:`Fit` (``applied_scale`` is the fitted scale; the caller decides
+    whether to apply it).
+    """
+    t0 = time.perf_counter()
+    z = np.asarray(hf.z, dtype=float)
+    relief = float(np.nanmax(z) - np.nanmin(z))
+    rows, cols = z.shape
+    grid = grid_mm or max(2.0, max(rows, cols) * hf.pixel_mm / 80.0)
+    tried = []
+
+    def ok(scale, spacing=grid, its=iterations):
+        flat = flatten_free(build_grid_mesh(scaled(hf, scale), spacing), s_min, s_max,
+                            iterations=its)
+        tried.append((float(scale), float(flat.invalid_area_fraction), int(flat.flipped)))
+        return flat.invalid_area_fraction <= target and flat.flipped == 0
+
+    if ok(1.0):
+        return Fit(relief, relief, 1.0, smooth_mm, "forms as given", tried,
+                   time.perf_counter() - t0)
+    lo, hi = 0.0, 1.0
+    guess = min(slope_bound(hf, s_max), 0.9)
+    while guess > 0.02:
+        if ok(guess):
+            lo = guess
+            break
+        hi, guess = guess, guess * 0.6
+    for _ in range(steps if lo > 0 else 0):
+        mid = 0.5 * (lo + hi)
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    if lo > 0 and fine_steps:
+        # The coarse mesh errs on the safe side: look above its answer on the fine one.
+        top = min(1.0, hi * 1.3)
+        if ok(top, fine_mm, fine_iterations):
+            lo = top
+        else:
+            hi = top
+            for _ in range(fine_steps):
+                mid = 0.5 * (lo + hi)
+                if ok(mid, fine_mm, fine_iterations):
+                    lo = mid
+                else:
+                    hi = mid
+    reason = ("slopes steeper than the material can form (at most %.0f degrees for a shrink "
+              "of %.0f %%)" % (np.degrees(np.arccos(1.0 - s_max)), 100 * s_max)
+              if lo > 0 else "no relief down to 2 % of the given one forms")
+    return Fit(relief, relief * lo, float(lo), smooth_mm, reason, tried,
+               time.perf_counter() - t0)

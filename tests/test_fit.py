@@ -1,0 +1,76 @@
+"""Fit to the material: a relief too steep to form is lowered when nobody asked for it,
+refused with the sidecar line that would form when somebody did, and kept when it forms."""
+
+import dataclasses
+
+import numpy as np
+
+from hostd import planner
+from pipeline.geometry import HeightField
+from pipeline.layout.fit import fit_height, scaled
+from pipeline.layout.free import flatten_free
+from pipeline.meshing.grid import build_grid_mesh
+from pipeline.profiles.profile import load_profile
+
+PROFILE = load_profile("generic-0.5mm")
+FREE = dataclasses.replace(PROFILE, flatten=dataclasses.replace(PROFILE.flatten, method="free"))
+LIM = PROFILE.shrink_limits
+
+
+def _cone(height_mm, diameter_mm=60.0, px=0.5):
+    n = int(diameter_mm / px) + 1
+    y, x = np.mgrid[0:n, 0:n] * px
+    r = np.hypot(x - diameter_mm / 2, y - diameter_mm / 2)
+    # A rounded cone: slopes of atan(2 * height / diameter) on its flank.
+    z = height_mm * np.clip(1 - np.sqrt(r ** 2 + 9.0) / (diameter_mm / 2), 0, None)
+    z[r > diameter_mm / 2] = np.nan
+    return HeightField(z, px, source="cone")
+
+
+def _write(tmp_path, hf, sidecar):
+    np.save(tmp_path / "cone.npy", hf.z)
+    (tmp_path / "cone.yaml").write_text("pixel_mm: %r\n%s" % (hf.pixel_mm, sidecar))
+    return tmp_path / "cone.npy"
+
+
+def _invalid(hf, scale):
+    flat = flatten_free(build_grid_mesh(scaled(hf, scale), 1.0), LIM.s_min, LIM.s_max)
+    return flat.invalid_area_fraction
+
+
+def test_the_fitted_height_is_within_five_percent_of_the_largest_that_forms():
+    hf = _cone(45.0)                       # flanks of 56 degrees: steeper than 49
+    fit = fit_height(hf, LIM.s_min, LIM.s_max)
+    assert 0.3 < fit.applied_scale < 1.0
+    # Planned slightly below and above the fitted height, on the plan's mesh.
+    assert _invalid(hf, fit.applied_scale * 0.95) <= 0.02
+    assert _invalid(hf, fit.applied_scale * 1.05) > 0.02
+
+
+def test_a_relief_nobody_asked_for_is_lowered_to_what_forms(tmp_path):
+    plan = planner.run(_write(tmp_path, _cone(45.0), ""), FREE, tmp_path / "out")
+    r = plan.report
+    assert r["fit"]["applied_scale"] < 1.0 and r["flatten"]["invalid_area_fraction"] <= 0.02
+    assert plan.printable and "fit.lowered" in [p["code"] for p in r["warnings"]]
+    assert set(r["fit"]) >= {"max_height_mm", "requested_height_mm", "applied_scale",
+                             "smooth_mm", "reason"}
+
+
+def test_a_relief_asked_for_is_refused_with_the_line_that_forms(tmp_path):
+    plan = planner.run(_write(tmp_path, _cone(45.0), "height_mm: 45\n"), FREE, tmp_path / "out")
+    assert not plan.printable
+    [p] = [p for p in plan.problems if p["code"] == "fit.too_high"]
+    line = plan.fit.sidecar_line()
+    assert line in p["fix"] and "cone.yaml" in p["fix"]
+    assert float(line.split(":")[1]) < 45.0
+
+
+def test_fit_off_keeps_the_relief(tmp_path):
+    plan = planner.run(_write(tmp_path, _cone(45.0), "fit: off\n"), FREE, tmp_path / "out")
+    assert plan.fit is None and plan.report["flatten"]["invalid_area_fraction"] > 0.02
+
+
+def test_a_relief_that_forms_is_left_as_it_is(tmp_path):
+    plan = planner.run(_write(tmp_path, _cone(12.0), ""), FREE, tmp_path / "out")
+    assert plan.report["fit"]["applied_scale"] == 1.0
+    assert "fit.lowered" not in [p["code"] for p in plan.problems]
