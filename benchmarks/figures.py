@@ -175,6 +175,8 @@ def _models(results):
     """Flatten a group's results to {model label: result}, skipping errors; a model
     planned by several methods gives one row per method."""
     out = {}
+    if "triangles" in results:               # a group of one model (fine_map)
+        results = {"fine map (16 MP)": results}
     for model, r in results.items():
         if not isinstance(r, dict) or "error" in r or "skipped" in r:
             continue

@@ -132,7 +132,8 @@ if name.endswith(".png"):
 else:
     shape = {**shapes.REFERENCE, **shapes.SADDLES}[name]
     hf = shape(**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
-    opts = sidecar_settings(None, prof)
+    from pipeline.input.sidecar import Sidecar
+    opts = sidecar_settings(Sidecar(), prof)
 hf, _ = validate(hf, opts["max_fill_mm"], bed_mm=prof.bed_mm)
 hf, _ = simplify(hf, opts["min_prominence_mm"], opts["smooth_mm"])
 t1 = time.perf_counter()
