@@ -15,15 +15,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import eigsh
 
-from pipeline.geometry import unique_edges
+from pipeline.geometry import signed_areas_2d, unique_edges
 
 
 def vertex_line_field(xy, faces, normal):
     """Per-vertex unit line field from per-face ``normal`` ((m, 2) unit): area-weighted
     mean of the doubled angles. Returns (n, 2)."""
-    P = np.asarray(xy, dtype=float)[faces]
-    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
-                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    area = np.abs(signed_areas_2d(np.asarray(xy, dtype=float), faces))
     z = area * np.exp(2j * np.arctan2(normal[:, 1], normal[:, 0]))
     acc = np.zeros(len(xy), complex)
     np.add.at(acc, faces.ravel(), np.repeat(z, 3))
@@ -227,9 +225,7 @@ def _edge_weights(xy, faces, E):
 
 
 def _vertex_areas(xy, faces):
-    P = xy[faces]
-    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
-                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    area = np.abs(signed_areas_2d(xy, faces))
     return np.bincount(faces.ravel(), np.repeat(area / 3, 3), len(xy))
 
 
