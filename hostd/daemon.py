@@ -22,6 +22,7 @@ import time
 from pathlib import Path, PurePosixPath
 
 from hostd import jobs as J
+from hostd.feed import job_feed
 from hostd.control import ControlMixin
 from hostd.intake import IntakeMixin
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
@@ -285,15 +286,18 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         if gcode is None:
             self.store.set_state(job["id"], J.QUEUED, "G-code missing from the outbox: planning again")
             return
+        rate = job_feed(gcode, slot.config.baud)
         try:
-            slot.link_job = slot.printer.start(str(self._spool(job, gcode)), job_id=job["id"])
+            slot.link_job = slot.printer.start(str(self._spool(job, gcode)), job_id=job["id"],
+                                               prelude=rate.commands)
         except PrinterError as exc:
             log.warning("printer %s cannot start %s: %s", slot.name, job["id"], exc)
             self._unspool(job["id"])
             return
         slot.job_id = job["id"]
-        self.store.set_state(job["id"], J.PRINTING, "printing on %s (copy %d of %d)" % (
-            slot.name, job["copies_done"] + 1, job["copies"]), printer=slot.name,
+        self.store.set_state(job["id"], J.PRINTING, "printing on %s (copy %d of %d)%s" % (
+            slot.name, job["copies_done"] + 1, job["copies"],
+            "; " + rate.note if rate.note else ""), printer=slot.name,
             started_at=job["started_at"] or time.time(), progress=0.0)
         self.store.set_printer(slot.name, job_id=job["id"])
         log.info("job %s: printing %s on %s (copy %d of %d)", job["id"], job["name"], slot.name,

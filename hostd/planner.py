@@ -8,6 +8,7 @@ only ``NAME.error.json`` is written.
 """
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 from hostd.outputs import Staging, atomic_write, json_text
 from pipeline import plyio
 from pipeline.gcode import writer as gcode
+from pipeline.gcode.link import LINK_SHARE
 from pipeline.pictures import figure, hfimage, render, texture
 from pipeline.errors import PipelineError
 from pipeline.plan import plan_file
@@ -76,6 +78,9 @@ def write_outputs(st, plan):
         _mark_not_printable(st.path(name + ".gcode"), plan.problems)
     timing["gcode"] = round(time.perf_counter() - t, 4)
     plan.report["gcode"] = _gcode_report(stats)
+    for problem in link_problems(stats, prof):
+        plan.problems.append(problem)
+        plan.report.setdefault("warnings", []).append(problem)
     t = time.perf_counter()
     if plan.hf.color is not None:
         colors = texture.vertex_colors(plan.hf, mesh.vertices)
@@ -119,6 +124,32 @@ def write_outputs(st, plan):
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed)" % (name, count),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+
+
+def link_problems(stats, profile):
+    """A warning when the file's moves need more of the serial link than a print may use:
+    what the printer host will do about it and what would print at full speed."""
+    pct = stats.get("feed_percent", 100)
+    if pct >= 100:
+        return []
+    speed = profile.speeds_mm_s.print
+    baud = stats["link_baud"]
+    return [{"code": "gcode.link_too_slow",
+             "message": "the file asks %.0f moves/s at the print speed of %g mm/s, more than "
+                        "%d %% of the %.0f lines/s a %d-baud link carries: the printer would "
+                        "stop between moves and blob; the printer host runs this job at %d %% "
+                        "feed" % (stats["moves_per_s"], speed, round(100 * LINK_SHARE),
+                                  stats["link_moves_per_s"], baud, pct),
+             "fix": "print at full speed with serial.baud: %d in the profile (and the "
+                    "printer's firmware), or set speeds_mm_s.print to %g; or turn on arcs "
+                    "(toolpath.arc_tolerance_mm: 0.02, Marlin's ARC_SUPPORT)" % (
+                        _baud_for(baud, 100.0 / pct), math.floor(speed * pct) / 100.0)}]
+
+
+def _baud_for(baud, factor):
+    """The smallest common baud rate at least ``baud * factor``."""
+    rates = (115200, 230400, 250000, 460800, 500000, 921600, 1000000)
+    return next((r for r in rates if r >= baud * factor), rates[-1])
 
 
 def _fit_note(plan):

@@ -4,6 +4,7 @@ Everything is checked by parsing the written text with our own parser
 (tests/gcode_parser.py), not by trusting the writer's stats.
 """
 
+import dataclasses
 import io
 import math
 import re
@@ -17,7 +18,10 @@ from pipeline.gcode.writer import GcodeSettings, write_gcode
 from pipeline.gcode.numfmt import format_fixed
 from pipeline.profiles.profile import load_profile
 
-PROFILE = load_profile("generic-0.5mm")
+# Chords kept as given: these tests follow each segment into the file (merging has its own).
+PROFILE = dataclasses.replace(
+    load_profile("generic-0.5mm"),
+    toolpath=dataclasses.replace(load_profile("generic-0.5mm").toolpath, chord_tolerance_mm=0.0))
 
 
 def rings(n_rings=12, spacing=0.48, r0=3.0, seg_mm=0.25, wobble=0.02):

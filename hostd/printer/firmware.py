@@ -128,6 +128,7 @@ class Firmware:
         self.relative = False
         self.relative_e = False
         self.feed_mm_min = 1500.0
+        self.feed_percent = 100.0
         self._ep_line = bytearray()
 
     def banner(self):
@@ -382,6 +383,8 @@ class Firmware:
         elif code == "M114":
             p = self.position
             self.out.append("X:%.2f Y:%.2f Z:%.2f E:%.2f Count X:0 Y:0 Z:0" % (p["X"], p["Y"], p["Z"], p["E"]))
+        elif code == "M220" and params.get("S"):
+            self.feed_percent = params["S"]
         elif code in ("G90", "G91"):
             self.relative = self.relative_e = code == "G91"
         elif code in ("M82", "M83"):
@@ -409,7 +412,8 @@ class Firmware:
             delta[axis] = target - self.position[axis]
             self.position[axis] = target
         length = math.sqrt(sum(delta.get(a, 0.0) ** 2 for a in "XYZ")) or abs(delta.get("E", 0.0))
-        duration_s = length / (self.feed_mm_min / 60.0) * self.config.time_scale if self.feed_mm_min > 0 else 0.0
+        feed_mm_s = self.feed_mm_min / 60.0 * self.feed_percent / 100.0
+        duration_s = length / feed_mm_s * self.config.time_scale if feed_mm_s > 0 else 0.0
         if self.planner:
             start = max(self.planner[-1][1], t_in)
         else:

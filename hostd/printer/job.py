@@ -1,5 +1,6 @@
 """A print job as the link streams it: its command source and its progress."""
 
+import itertools
 import os
 import threading
 import time
@@ -62,8 +63,12 @@ class Job:
     the firmware acknowledged -- where an interrupted print can be resumed from.
     """
 
-    def __init__(self, source, job_id=None, start_line=1):
-        self._lines, self.total, self.name = open_source(source, start_line)
+    def __init__(self, source, job_id=None, start_line=1, prelude=()):
+        lines, total, self.name = open_source(source, start_line)
+        # Commands for this job before the file's own (its feed rate): file line 0.
+        head = [(0, c) for c in map(clean, prelude) if c]
+        self._lines = itertools.chain(head, lines) if head else lines
+        self.total = total + len(head) if total is not None else None
         self.id = job_id or uuid.uuid4().hex[:12]
         self.phase = PRINTING
         self.result = None

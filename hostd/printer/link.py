@@ -65,14 +65,15 @@ class Printer(Driver):
                                + self.settings.handshake_timeout_s * (self.settings.handshake_attempts + 3))
         return self._call("connect", timeout_s=budget)
 
-    def start(self, source, job_id=None, start_line=1):
+    def start(self, source, job_id=None, start_line=1, prelude=()):
         """Start streaming a file path, or an iterable of G-code lines; returns the Job.
 
         ``start_line`` (1-based, in the file) skips everything before it: with an
         interrupted job's ``last_confirmed_line + 1`` it continues where the firmware
         stopped -- after the caller has re-homed/re-heated as its profile requires.
+        ``prelude`` commands go first (the job's feed rate), counted as file line 0.
         """
-        job = Job(source, job_id, start_line)
+        job = Job(source, job_id, start_line, prelude)
         return self._call("start", job)
 
     # pause, resume, cancel, send: see events.Publisher.

@@ -87,11 +87,11 @@ class PrinterProcess(Publisher):
     def connect(self, timeout_s=None):
         return self._call("connect", timeout_s, timeout_s=(timeout_s or _CALL_TIMEOUT_S) + 5)
 
-    def start(self, source, job_id=None, start_line=1):
+    def start(self, source, job_id=None, start_line=1, prelude=()):
         if not isinstance(source, (str, list, tuple)) and not hasattr(source, "__fspath__"):
             source = list(source)
         snapshot = self._call("start", str(source) if hasattr(source, "__fspath__") else source,
-                              job_id, start_line)
+                              job_id, start_line, list(prelude))
         with self._lock:
             self.job = JobProxy(snapshot)
         return self.job

@@ -38,6 +38,8 @@ import numpy as np
 
 from pipeline.errors import PlanError
 from pipeline.gcode.arcs import moves_with_arcs
+from pipeline.gcode.chords import merge_chords
+from pipeline.gcode.link import feed_percent, link_moves_per_s
 from pipeline.gcode.layers import emit, text_of_moves
 from pipeline.gcode.printtime import ACCELERATION_MM_S2, JUNCTION_DEVIATION_MM
 from pipeline.gcode.summary import estimate, header_lines, summary
@@ -67,6 +69,8 @@ class GcodeSettings:
     start_gcode: str = ""
     end_gcode: str = ""
     arc_tolerance_mm: float = 0.0
+    chord_tolerance_mm: float = 0.0
+    baud: int = 115200
     merge_sigma: float = 0.005
     acceleration_mm_s2: float = ACCELERATION_MM_S2
     junction_deviation_mm: float = JUNCTION_DEVIATION_MM
@@ -94,6 +98,8 @@ class GcodeSettings:
             relative_e=profile.extrusion == "relative",
             start_gcode=profile.render_gcode("start"), end_gcode=profile.render_gcode("end"),
             arc_tolerance_mm=float(profile.toolpath.arc_tolerance_mm),
+            chord_tolerance_mm=float(profile.toolpath.chord_tolerance_mm),
+            baud=int(profile.serial.baud),
             merge_sigma=float(profile.toolpath.merge_sigma),
             profile_name=profile.name, shrink=profile.shrink_curve)
         vals.update(overrides)
@@ -251,27 +257,36 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
     dict with ``lines``, ``bytes``, ``layers``, ``thickness_mm {min, max}``,
     ``clamped_segments`` (per 2-D path, not times layers), ``filament_mm``,
     ``filament_g``, ``estimated_print_s``, ``bed_fits``, ``travel_moves``,
-    ``traces``, ``extrusion_moves``, ``moves_per_s``, and
+    ``traces``, ``extrusion_moves``, ``moves_per_s`` (at print speed), ``link_baud``,
+    ``link_moves_per_s`` (the lines per second the link carries for this file's mean
+    line length), ``feed_percent`` (the feed at which the moves fit in 80 % of it), and
     ``lines_without_arcs`` when arc fitting is on.
     """
     settings = GcodeSettings.from_profile(profile)
     if len(traces) != len(sigmas):
         raise PlanError("%d traces but %d sigma arrays" % (len(traces), len(sigmas)),
                         code="gcode.bad_input", fix="give one sigma array per trace")
-    flat = np.concatenate([np.asarray(s, dtype=float).reshape(-1) for s in sigmas]
-                          + [np.zeros(0)])
-    parts = np.cumsum([np.asarray(s).size for s in sigmas])[:-1]
+    traces, values = merge_chords(traces, _per_segment(sigmas, deltas),
+                                  settings.chord_tolerance_mm, settings.merge_sigma)
+    parts = np.cumsum([len(v) for v in values])[:-1]
+    per_seg = np.concatenate(values + [np.zeros((0, 1 if deltas is None else 2))])
+    flat = per_seg[:, 0]
     if deltas is None:
         theta, clamped = thickness_for_sigma(flat, settings)
     else:
-        delta = np.concatenate([np.asarray(s, dtype=float).reshape(-1) for s in deltas]
-                               + [np.zeros(0)])
-        theta, clamped = _bilayer_thickness(flat, delta, settings)
+        theta, clamped = _bilayer_thickness(flat, per_seg[:, 1], settings)
     thetas = np.split(theta, parts)
     return write_thickness_gcode(traces, thetas, settings, out, name=name, center=center,
                                  arc_values=np.split(flat, parts),
                                  arc_value_span=settings.merge_sigma,
                                  clamped_segments=int(clamped.sum()))
+
+
+def _per_segment(sigmas, deltas):
+    """Each trace's (k - 1, 1) shrink, or (k - 1, 2) shrink and bilayer difference."""
+    cols = [sigmas] if deltas is None else [sigmas, deltas]
+    return [np.column_stack([np.asarray(c[i], dtype=float).reshape(-1) for c in cols])
+            for i in range(len(sigmas))]
 
 
 def _bilayer_thickness(sigma, delta, settings):
@@ -313,6 +328,9 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     sink = _write(out, lambda sink: emit(sink, header, mv, text, timing, settings, labels))
     stats["lines"] = sink.lines
     stats["bytes"] = sink.bytes
+    stats["link_baud"] = settings.baud
+    stats["link_moves_per_s"] = round(link_moves_per_s(settings.baud, sink.bytes, sink.lines), 1)
+    stats["feed_percent"] = feed_percent(stats["moves_per_s"], stats["link_moves_per_s"])
     if settings.arc_tolerance_mm > 0:
         moves_saved = stats["segments"] - len(mv["len"])
         stats["lines_without_arcs"] = sink.lines + moves_saved * settings.layers

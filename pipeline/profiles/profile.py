@@ -135,6 +135,7 @@ class ToolpathParams:
     merge_angle_deg: float = _num(2.0, strict=False, hi=45.0)
     merge_sigma: float = _num(0.005, strict=False, hi=1.0)
     arc_tolerance_mm: float = _num(0.0, strict=False)
+    chord_tolerance_mm: float = _num(0.02, strict=False, hi=1.0)
 
 
 @dataclass(frozen=True)
