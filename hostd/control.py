@@ -81,13 +81,23 @@ class ControlMixin:
             os.unlink(err)   # the reason is kept in the job's events
         self.store.set_state(job["id"], J.QUEUED, "requeued by a person", input_path=str(dest),
                              sidecar_path=str(side) if side else None, error=None,
-                             error_code=None, copies_done=0, progress=0.0, finished_at=None)
+                             error_code=None, decision=None, copies_done=0, progress=0.0,
+                             finished_at=None)
         # The sidecar may have changed (a profile, copies, priority): read it again, as
         # intake does, so the job is planned with what the file now says.
         problem = self._retarget(self.store.get(job["id"]), side)
         if problem:
             return "not requeued: %s" % problem
         return "requeued %s" % job["id"]
+
+    def _do_approve(self, job_id):
+        job = self.store.require(job_id)
+        if job["state"] != J.READY or not job["decision"]:
+            raise HostdError("job %s does not wait for a decision (it is %s)"
+                             % (job["id"], job["state"]), code="control.no_decision")
+        self.store.set_state(job["id"], J.READY, "a person chose to print it anyway",
+                             decision=None)
+        return "approved %s: it prints on the next free printer" % job["id"]
 
     def _retarget(self, job, side):
         """Re-read ``job``'s sidecar and take its profile, copies and priority; a sidecar

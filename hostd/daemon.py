@@ -23,6 +23,7 @@ from pathlib import Path, PurePosixPath
 
 from hostd import jobs as J
 from hostd.feed import job_feed
+from hostd.reports import decision, report_in
 from hostd.control import ControlMixin
 from hostd.intake import IntakeMixin
 from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
@@ -253,7 +254,9 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         outbox = self._outbox(job)
         self.cache.export(job["plan_key"], outbox, Path(job["name"]).stem if not
                           name_problem(job["name"]) else Path(job["input_path"]).stem)
-        self.store.set_state(job["id"], J.READY, message, outbox=str(outbox))
+        wait = decision(report_in(outbox))
+        self.store.set_state(job["id"], J.READY, message + (". " + wait if wait else ""),
+                             outbox=str(outbox), decision=wait)
         log.info("job %s: %s ready (%s), outputs in %s", job["id"], job["name"], message, outbox)
 
     def _gcode(self, job):
@@ -273,7 +276,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                     slot.connect_async()
         held = {s.job_id for s in self.slots}
         for job in self.store.next_in_order(J.READY):
-            if job["id"] in held:         # started while its state could not be recorded
+            if job["id"] in held or job["decision"]:   # started unrecorded, or a person decides
                 continue
             for slot in self.slots:
                 if slot.available() and self._eligible(slot, job):

@@ -7,14 +7,11 @@ would take more than :data:`pipeline.gcode.link.LINK_SHARE` of the link runs at 
 feed percentage (M220) instead.
 """
 
-import json
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from hostd.reports import report_in
 from pipeline.gcode.link import LINK_SHARE, feed_percent, link_moves_per_s
-
-log = logging.getLogger("hostd.daemon")
 
 
 @dataclass(frozen=True)
@@ -46,9 +43,4 @@ def job_feed(gcode_path, baud):
 
 
 def _gcode_figures(gcode_path):
-    report = gcode_path.with_name(gcode_path.name[:-len(".gcode")] + ".report.json")
-    try:
-        return json.loads(report.read_text(encoding="utf-8")).get("gcode") or {}
-    except (OSError, ValueError, AttributeError) as exc:
-        log.debug("no G-code figures for %s: %s", gcode_path.name, exc)
-        return {}
+    return report_in(gcode_path.parent).get("gcode") or {}

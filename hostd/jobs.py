@@ -50,7 +50,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     updated_at REAL NOT NULL,
     started_at REAL,
     finished_at REAL,
-    seq INTEGER NOT NULL
+    seq INTEGER NOT NULL,
+    decision TEXT                  -- why a ready plan waits for a person (outside limits)
 );
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);
 CREATE TABLE IF NOT EXISTS events (
@@ -83,7 +84,8 @@ COMMIT;
 
 _FIELDS = ("name", "rel_path", "input_path", "sidecar_path", "input_hash", "target", "profile",
            "printer", "priority", "copies", "copies_done", "state", "progress", "last_line",
-           "error", "error_code", "plan_key", "outbox", "node_id", "started_at", "finished_at")
+           "error", "error_code", "plan_key", "outbox", "node_id", "started_at", "finished_at",
+           "decision")
 
 
 _BUSY_TIMEOUT_S = 30.0
@@ -194,6 +196,10 @@ class JobStore:
             cols = {r[1] for r in self.db.execute("PRAGMA table_info(printers)")}
             if "held" not in cols:
                 self.db.execute("ALTER TABLE printers ADD COLUMN held TEXT")
+            # ... and before a plan could wait for a person's decision.
+            cols = {r[1] for r in self.db.execute("PRAGMA table_info(jobs)")}
+            if "decision" not in cols:
+                self.db.execute("ALTER TABLE jobs ADD COLUMN decision TEXT")
         except sqlite3.OperationalError:
             if self.db.in_transaction:
                 self.db.rollback()

@@ -74,7 +74,7 @@ def write_outputs(st, plan):
     t = time.perf_counter()
     stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(name + ".gcode"), name=name,
                               center=False, deltas=_segment_deltas(plan))
-    if not plan.printable:
+    if plan.blocked:
         _mark_not_printable(st.path(name + ".gcode"), plan.problems)
     timing["gcode"] = round(time.perf_counter() - t, 4)
     plan.report["gcode"] = _gcode_report(stats)

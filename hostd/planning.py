@@ -96,11 +96,14 @@ def _limit(memory_mb, cpu_s):
 
 
 def plan_result(plan):
-    """The job's verdict on a finished plan: a plan marked not printable (its flat
-    layout folds) fails its job with the reasons; its outputs stay for a person."""
-    if plan.printable:
+    """The job's verdict on a finished plan: a plan that cannot print (its flat layout
+    folds, or the relief asked for cannot form) fails its job with the reasons; its
+    outputs stay for a person. A plan outside the profile's printable limits is ready,
+    and the daemon holds it for a person's decision (read from its report)."""
+    from pipeline.plan import BLOCKING
+    if not plan.blocked:
         return {"ok": True}
-    worst = next(p for p in plan.problems if p["code"] == "flatten.overlap")
+    worst = next(p for p in plan.problems if p["code"] in BLOCKING)
     text = "; ".join(p["message"] for p in plan.problems)
     return {"ok": False, "code": worst["code"], "text": "planned but not printable: " + text,
             "fix": worst["fix"] + " (the outbox has the pictures that show where)"}

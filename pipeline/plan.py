@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import __version__
+from pipeline import __version__, printable
 from pipeline.geometry import signed_areas_2d
 from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
@@ -56,8 +56,18 @@ class Plan:
     @property
     def printable(self):
         """False when a problem makes printing pointless (the layout folds, or the relief
-        asked for cannot form)."""
-        return not any(p["code"] in BLOCKING for p in self.problems)
+        asked for cannot form) or the plan is outside the profile's printable limits."""
+        return not self.blocked and not self.needs_decision
+
+    @property
+    def blocked(self):
+        """A problem makes printing pointless."""
+        return any(p["code"] in BLOCKING for p in self.problems)
+
+    @property
+    def needs_decision(self):
+        """Outside the profile's printable limits: a person decides whether to print."""
+        return not self.blocked and any(p["code"] in printable.CODES for p in self.problems)
 
 
 STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
@@ -216,6 +226,10 @@ def plan_file(path, profile, progress=None, force_fit=False):
         _isoline_sheet(result, hf, profile, path, stage, timing)
     timing["total"] = time.perf_counter() - t_all
     result.report = _report(path, profile, result, vrep, srep, timing)
+    section, problems = printable.gate(result.report, profile.printable, path.stem)
+    result.problems += problems
+    result.report.update(gate=section, printable=result.printable,
+                         needs_decision=result.needs_decision, warnings=list(result.problems))
     return result
 
 

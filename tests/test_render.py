@@ -287,3 +287,15 @@ def test_ply_writes_to_a_file_object_and_without_colours():
     assert np.array_equal(m.vertices, v) and (m.faces == [[0, 1, 2]]).all()
     with pytest.raises(ValueError):
         write_ply(io.BytesIO(), v, [[0, 1, 3]])
+
+
+def test_pictures_count_invalid_edges_by_the_reports_criterion():
+    from pipeline.layout.isoline import SIGMA_TOL
+    from pipeline.pictures.render import _split_by_validity
+    sigma = np.array([0.343 + SIGMA_TOL / 2, 0.343 + 2 * SIGMA_TOL, -SIGMA_TOL / 2,
+                      -2 * SIGMA_TOL, 0.1])
+    high, low, ok = _split_by_validity(sigma, 0.0, 0.343)
+    # The report's invalid_edge_fraction: sigma outside [s_min - tol, s_max + tol].
+    report_invalid = (sigma < -SIGMA_TOL) | (sigma > 0.343 + SIGMA_TOL)
+    assert np.array_equal(high | low, report_invalid)
+    assert high.tolist() == [False, True, False, False, False]

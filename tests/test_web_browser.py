@@ -92,3 +92,52 @@ def test_page_in_headless_chromium(tmp_path):
         if browser is not None:
             browser.close()
         assert d.stop() == 0, d.output()[-3000:]
+
+
+def test_print_anyway_in_headless_chromium(tmp_path):
+    """A plan outside its profile's printable limits waits on its page; "Print anyway",
+    confirmed, with the token, prints it."""
+    _requirements()
+    profiles = tmp_path / "profiles"
+    profiles.mkdir()
+    text = (ROOT / "profiles" / "generic-0.5mm.yaml").read_text()
+    (profiles / "strict-0.5mm.yaml").write_text(
+        text.replace("name: generic-0.5mm", "name: strict-0.5mm")
+            .replace("min_coverage: 0.90", "min_coverage: 1.0"))
+    port = free_port()
+    fast = "sim://?time_scale=0&advanced_ok=1&boot_s=0"
+    config = write_config(tmp_path, printers=[{"name": "p1", "profile": "strict-0.5mm",
+                                               "port": fast, "baud": 2000000}],
+                          web={"host": "127.0.0.1", "port": port, "token": TOKEN})
+    base = "http://127.0.0.1:%d" % port
+    d = DaemonProcess(config, env={"HOSTD_PROFILES": str(profiles)})
+    browser = None
+    try:
+        wait_http(base + "/healthz")
+        write_dome(tmp_path / "share" / "drop" / "dome.npy")
+
+        def job():
+            _, body = get_json(base + "/api/jobs")
+            jobs = body["jobs"] if isinstance(body, dict) else body
+            return jobs[0] if jobs else {}
+        deadline = time.monotonic() + 120
+        while not job().get("decision"):
+            assert time.monotonic() < deadline, "no job waits:\n" + d.output()[-3000:]
+            time.sleep(0.3)
+        assert job()["state"] == "ready"
+        browser = Chromium()
+        browser.goto(base + "/jobs/" + job()["id"])
+        assert "tool paths cover" in browser.js("document.body.textContent")
+        browser.js("document.getElementById('token-input').value = %r;"
+                   "document.getElementById('token-keep').click()" % TOKEN)
+        browser.js("window.confirm = function () { return true; };"
+                   "document.querySelector('form.approve button').click()")
+        deadline = time.monotonic() + 60
+        while job()["state"] == "ready":
+            assert time.monotonic() < deadline, "not approved:\n" + d.output()[-3000:]
+            time.sleep(0.3)
+        assert job()["decision"] is None and job()["state"] in ("printing", "done")
+    finally:
+        if browser is not None:
+            browser.close()
+        assert d.stop() == 0, d.output()[-3000:]

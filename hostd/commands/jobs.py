@@ -31,6 +31,8 @@ def add_parser(sub):
     p.set_defaults(func=cmd_job)
     for action, what, help_ in (("requeue", "id", "queue a finished job again"),
                                 ("cancel", "id", "cancel a queued, planning or printing job"),
+                                ("approve", "id", "print a plan outside its profile's "
+                                                  "printable limits anyway"),
                                 ("pause", "printer", "pause a printer (it takes no new jobs)"),
                                 ("resume", "printer", "resume a paused printer")):
         p = sub.add_parser(action, help=help_)

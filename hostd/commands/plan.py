@@ -93,6 +93,11 @@ def run(args):
               r["input"], r["mesh"]["triangles"], 100 * r["flatten"]["invalid_edge_fraction"],
               r["simulation"]["mean_displacement_mm"], r["simulation"]["max_displacement_mm"],
               r["timing_s"]["total"], Path(args.outdir) / (name + ".report.json")))
+    if r.get("needs_decision"):
+        print("hostd plan: planned, but outside the profile's printable limits (see the "
+              "warnings above): the daemon holds such a job until a person approves it "
+              "(`hostd approve ID` or \"Print anyway\" on the page)", file=sys.stderr)
+        return 4
     if not r["printable"]:
         print("hostd plan: planned, but NOT printable (see the warnings above)", file=sys.stderr)
         return 4

@@ -22,7 +22,7 @@ bp = Blueprint("api", __name__)
 
 NO_TOKEN = ("actions are disabled on this node: no token is configured. Set `web: {token: "
             "SOME-LONG-SECRET}` in hostd.yaml (see docs/hostd.example.yaml) and restart hostd")
-JOB_ACTIONS = ("pause", "resume", "cancel", "requeue")
+JOB_ACTIONS = ("pause", "resume", "cancel", "requeue", "approve")
 
 
 def view():

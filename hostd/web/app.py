@@ -20,7 +20,7 @@ from hostd.web import api, pages
 from hostd.web.view import NodeView
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
-DESTRUCTIVE = ("cancel", "estop")
+DESTRUCTIVE = ("cancel", "estop", "approve")
 CSP = ("default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; "
        "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'")
 
@@ -64,13 +64,27 @@ def create_app(config, store=None, daemon=None):
     app.register_blueprint(api.bp)
     app.register_blueprint(octoprint.bp)
     app.register_blueprint(metrics.bp)
-    app.jinja_env.filters.update(duration=_duration, when=_when, chart=_chart_points)
+    app.jinja_env.filters.update(duration=_duration, when=_when, chart=_chart_points,
+                                  sentence=problem_sentence)
     app.context_processor(lambda: {"node_id": config.node_id})
     app.after_request(security_headers)
     add_error_pages(app)
     pages.add_pages(app, DESTRUCTIVE)
     pages.add_form_actions(app, DESTRUCTIVE)
     return app
+
+
+def problem_sentence(problem):
+    """A report's warning (code, message, fix) as an operator reads it: what, then the fix,
+    without the Markdown backticks the CLI's text carries."""
+    if not isinstance(problem, dict):
+        return str(problem)
+    text = str(problem.get("message", "")).strip().rstrip(".")
+    text = text[:1].upper() + text[1:] + "."
+    if problem.get("fix"):
+        fix = str(problem["fix"]).strip().rstrip(".")
+        text += " Fix: " + fix[:1].upper() + fix[1:] + "."
+    return text.replace("`", "")
 
 
 def security_headers(resp):

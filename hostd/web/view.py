@@ -295,7 +295,7 @@ class NodeView:
         """A JSON-ready job: store fields, outputs, and (printing) layer, elapsed and ETA."""
         keys = ("id", "name", "state", "printer", "profile", "target", "priority", "copies",
                 "copies_done", "progress", "error", "error_code", "created_at", "updated_at",
-                "started_at", "finished_at")
+                "started_at", "finished_at", "decision")
         info = {k: job.get(k) for k in keys}
         files = self._share.call([], outbox_files, job.get("outbox"))
         info["files"] = files

@@ -92,6 +92,9 @@ class FlatResult:
     invalid_edge_fraction: float
     sigma_stats: dict
     bridge_strain: dict
+    invalid_area_fraction: float = 0.0
+    stretch_area_fraction: float = 0.0
+    overshrink_area_fraction: float = 0.0
     energy_history: list = field(default_factory=list)
     timing_s: dict = field(default_factory=dict)
 
@@ -103,6 +106,9 @@ class FlatResult:
                 "flipped_triangles": int(self.flipped_triangles),
                 "overlapping": bool(self.overlapping),
                 "invalid_edge_fraction": float(self.invalid_edge_fraction),
+                "invalid_area_fraction": float(self.invalid_area_fraction),
+                "stretch_area_fraction": float(self.stretch_area_fraction),
+                "overshrink_area_fraction": float(self.overshrink_area_fraction),
                 "sigma": {k: float(v) for k, v in self.sigma_stats.items()},
                 "bridge_strain": {k: float(v) for k, v in self.bridge_strain.items()}}
 
@@ -326,12 +332,30 @@ def layout_quality(mesh, xy, top=None, s_min=0.0, s_max=0.343, is_print=None, pr
     flipped = int(np.count_nonzero(signed_areas_2d(xy, top.faces) * orient <= 0))
     crossings = boundary_intersections(xy, top.edges[top.boundary_edges])
     invalid = (sigma < s_min - SIGMA_TOL) | (sigma > s_max + SIGMA_TOL)
-    return {"sigma": sigma, "flipped_triangles": flipped,
+    areas = _invalid_areas(top, print_row, sigma < s_min - SIGMA_TOL,
+                           sigma > s_max + SIGMA_TOL, np.abs(signed_areas_2d(xy, top.faces)))
+    return {"sigma": sigma, "flipped_triangles": flipped, **areas,
             "boundary_intersections": crossings, "overlapping": bool(flipped or crossings),
             "invalid_edge_fraction": float(invalid.mean()) if len(sigma) else 0.0,
             "sigma_stats": _stats(sigma),
             "bridge_strain": {"mean_abs": float(np.abs(strain).mean()) if len(strain) else 0.0,
                               "max_abs": float(np.abs(strain).max()) if len(strain) else 0.0}}
+
+
+def _invalid_areas(top, print_row, stretch, over, area):
+    """Shares of the flat sheet's area in triangles with a printing edge that would have to
+    stretch, or shrink more than the material can: the isoline method's counterpart of
+    the free layout's invalid area (a triangle counts once, stretch first)."""
+    edge_stretch = np.zeros(len(top.edges), bool)
+    edge_over = np.zeros(len(top.edges), bool)
+    edge_stretch[print_row] = stretch
+    edge_over[print_row] = over
+    f_stretch = edge_stretch[top.face_edge].any(axis=1)
+    f_over = edge_over[top.face_edge].any(axis=1) & ~f_stretch
+    total = max(float(area.sum()), 1e-12)
+    return {"stretch_area_fraction": float(area[f_stretch].sum() / total),
+            "overshrink_area_fraction": float(area[f_over].sum() / total),
+            "invalid_area_fraction": float(area[f_stretch | f_over].sum() / total)}
 
 
 def _stats(x):

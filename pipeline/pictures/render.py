@@ -15,6 +15,7 @@ from pipeline.pictures.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, WHI
                              font, fmt_number, framed, nice_ceil, scale_bar, stat_lines, swatch,
                              text_size, to_image)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
+from pipeline.layout.isoline import SIGMA_TOL
 from pipeline.pictures.raster import dash_segments, draw_segments, rasterize_triangles
 from pipeline.pictures.shading import camera_basis, project, shaded_view, view_fit
 
@@ -77,8 +78,9 @@ def _invalid_legend(img, x, y, texts, fs):
 
 
 def _split_by_validity(sigma, s_min, s_max):
-    high = sigma > s_max
-    low = sigma < s_min
+    """Out of range by the report's own criterion, so picture and report agree."""
+    high = sigma > s_max + SIGMA_TOL
+    low = sigma < s_min - SIGMA_TOL
     return high, low, ~(high | low)
 
 

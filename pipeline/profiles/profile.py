@@ -139,6 +139,14 @@ class ToolpathParams:
 
 
 @dataclass(frozen=True)
+class PrintableLimits:
+    """Within these a plan prints by itself; outside them it waits for a person (fractions)."""
+    max_invalid_area: float = _num(0.25, strict=False, hi=1.0)
+    max_mean_displacement: float = _num(0.03, strict=False, hi=1.0)
+    min_coverage: float = _num(0.90, strict=False, hi=1.0)
+
+
+@dataclass(frozen=True)
 class ValidateParams:
     max_fill_mm: float = _num(2.0, strict=False)
     max_pixels: int = _num(25_000_000, integer=True)
@@ -185,6 +193,7 @@ class Profile:
     mesh: MeshParams = _section(MeshParams)
     flatten: FlattenParams = _section(FlattenParams)
     toolpath: ToolpathParams = _section(ToolpathParams)
+    printable: PrintableLimits = _section(PrintableLimits)
     validate: ValidateParams = _section(ValidateParams)
     defaults: Defaults = _section(Defaults)
     source: str = field(default="", compare=False, metadata={"kind": None})

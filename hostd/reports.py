@@ -1,0 +1,30 @@
+"""What the daemon reads from a plan's report in the outbox: the figures a print needs
+(its feed over the link) and whether a person must decide before it prints."""
+
+import json
+import logging
+from pathlib import Path
+
+log = logging.getLogger("hostd.daemon")
+
+
+def report_in(outbox):
+    """The ``NAME.report.json`` in a job's outbox folder as a dict ({} when absent)."""
+    found = sorted(Path(outbox).glob("*.report.json")) if outbox else []
+    if not found:
+        return {}
+    try:
+        return json.loads(found[0].read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        log.warning("cannot read %s: %s", found[0], exc)
+        return {}
+
+
+def decision(report):
+    """Why a ready plan must wait for a person (outside its profile's printable limits),
+    as sentences; None when it may print by itself."""
+    if not report.get("needs_decision"):
+        return None
+    outside = set(report.get("gate", {}).get("outside", []))
+    said = ["%s." % w["message"] for w in report.get("warnings", []) if w.get("code") in outside]
+    return "Outside the profile's printable limits: " + " ".join(said)
