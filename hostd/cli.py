@@ -6,6 +6,7 @@ Each subcommand lives in ``hostd.commands.<name>`` and registers itself through
 
 import argparse
 import importlib
+import os
 import sqlite3
 import sys
 
@@ -42,6 +43,11 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("hostd: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (`hostd jobs | head`): stop quietly, as cat and ls do, and
+        # keep Python from complaining again when it flushes stdout at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except sqlite3.DatabaseError as exc:
         from hostd.jobs import DAMAGED, is_damage
         if not is_damage(exc):

@@ -38,4 +38,7 @@ def setup(level=logging.INFO, stream=None, environ=None):
     logger.addHandler(handler)
     logger.setLevel(level)
     logger.propagate = False
+    # waitress warns "Task queue depth is N" whenever a request waits for a thread: with
+    # the page polling every 2 s that is routine, and alone in the log it reads as trouble.
+    logging.getLogger("waitress.queue").setLevel(logging.ERROR)
     return logger

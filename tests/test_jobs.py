@@ -132,9 +132,10 @@ def test_a_terminal_command_on_a_full_job_database_says_so(tmp_path, monkeypatch
     from daemon_helpers import fill_store
     from hostd.commands import jobs as cli
     store = J.JobStore(tmp_path / "jobs.sqlite")
+    jid = store.add("a.png", "a.png", tmp_path / "a.png", profile="p")
     fill_store(store)
     monkeypatch.setattr(cli, "_open", lambda args, need_daemon: (None, store, 1234))
-    rc = cli.cmd_action(argparse.Namespace(action="cancel", target="some-job", config=None))
+    rc = cli.cmd_action(argparse.Namespace(action="cancel", target=jid, config=None))
     err = capsys.readouterr().err
     assert rc == 2 and "error jobs.disk_full" in err and "Fix: free space" in err
 

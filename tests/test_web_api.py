@@ -378,6 +378,14 @@ def test_upload_to_a_drop_folder_that_does_not_answer_is_refused_and_never_lands
     assert r.status_code == 201 and (drop / "late.npy").read_bytes() == b"\x93NUMPY fake"
 
 
+def test_an_upload_the_watcher_would_ignore_is_refused(node):
+    for name in ("~$lock.npy", "~$dome.png"):
+        r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",
+                             data={"file": (io.BytesIO(b"\x93NUMPY"), name)})
+        assert r.status_code == 400 and "ignores" in r.json["error"], name
+    assert not list(node.config.drop_dir.glob("*lock*"))
+
+
 def test_upload_size_limit(node):
     node.app.config["MAX_CONTENT_LENGTH"] = 1000
     r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",

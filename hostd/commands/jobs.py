@@ -121,9 +121,15 @@ def cmd_job(args):
     return 0
 
 
+JOB_ACTIONS = ("requeue", "cancel", "approve")
+
+
 def cmd_action(args):
     try:
         _, store, _ = _open(args, need_daemon=True)
+        if args.action in JOB_ACTIONS:
+            # An unknown job is an error of the command line, told as `hostd job` tells it.
+            args.target = store.require(args.target)["id"]
         req = store.request(args.action, args.target)   # e.g. jobs.disk_full
     except HostdError as exc:
         return _fail(exc)

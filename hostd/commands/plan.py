@@ -11,8 +11,11 @@ from pipeline.profiles.profile import load_profile
 def add_parser(sub):
     p = sub.add_parser("plan", help="plan one height field into flat layout, pictures and report",
                        description="Run the flatten-and-plan pipeline on INPUT and write "
-                                   "NAME.report.json, NAME.flat.ply, NAME.simulated.ply, "
-                                   "NAME.stress.png and NAME.preview.png into OUTDIR.")
+                                   "into OUTDIR: %s (with a coloured input also %s); on an "
+                                   "error only NAME.error.json." % (
+                                       ", ".join(_outputs(False)),
+                                       ", ".join(sorted(set(_outputs(True))
+                                                        - set(_outputs(False))))))
     p.add_argument("input", help="height field: PNG/TIFF, .npy/.npz (mm) or STL/OBJ/PLY/GLB")
     p.add_argument("--profile", "-p", default=None,
                    help="printer profile name or YAML path (default: the sidecar's, "
@@ -26,6 +29,11 @@ def add_parser(sub):
                         "(even where the sidecar asks for a height) and print the scales tried")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress on stderr")
     p.set_defaults(func=run)
+
+
+def _outputs(color):
+    from hostd.planner import output_names
+    return list(output_names("NAME", color=color).values())
 
 
 def _profile_name(args):
@@ -71,6 +79,12 @@ def run(args):
                   file=sys.stderr, flush=True)
 
     name = Path(args.input).stem
+    if not Path(args.input).is_file():
+        # Nothing was planned: no NAME.error.json beside wherever the command ran.
+        print("hostd plan: error heightfield.not_found: %s: input file not found. Fix: give "
+              "the path of a height field (PNG/TIFF, .npy/.npz, STL/OBJ/PLY/GLB)" % args.input,
+              file=sys.stderr)
+        return 2
     try:
         profile = _with_method(load_profile(_profile_name(args)), args)
         plan = planner.run(args.input, profile, args.outdir, progress=progress,

@@ -16,7 +16,7 @@ from flask import Blueprint, abort, current_app, jsonify, request, send_file
 
 from hostd import jobs as J
 from hostd.farm import unique_path
-from hostd.watcher import INPUT_SUFFIXES, name_problem
+from hostd.watcher import INPUT_SUFFIXES, ignored, name_problem
 
 bp = Blueprint("api", __name__)
 
@@ -166,6 +166,11 @@ def save_upload(upload, sidecar=None, target=None):
     if Path(name).suffix.lower() not in INPUT_SUFFIXES:
         return 400, dict(ok=False, error="%s: not an input type hostd plans (%s)"
                                          % (name, " ".join(INPUT_SUFFIXES)))
+    if ignored(name):
+        # The watcher passes over lock files and partial downloads: it would never be a job.
+        return 400, dict(ok=False, error="%s: a name the drop folder ignores (lock files "
+                                         "~$*, partial downloads, hidden files); rename it"
+                                         % name)
     folder = Path(v.config.drop_dir)
     if target:
         known = {p.name for p in v.config.printers} | {p.profile for p in v.config.printers}

@@ -54,6 +54,10 @@ _SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
                    "priority": ("int", None)}
 
 
+# A sidecar holds a few keys; anything larger is refused unparsed.
+MAX_SIDECAR_BYTES = 64 * 1024
+
+
 def sidecar_path(path):
     """``NAME.yaml`` beside input ``NAME.ext``: Path."""
     path = Path(path)
@@ -70,7 +74,7 @@ def load_sidecar(path):
         return Sidecar()
     src = str(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.safe_load(_read_capped(path, src))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         mark = getattr(exc, "problem_mark", None)
         raise InvalidSidecar("not valid YAML: %s" % getattr(exc, "problem", exc),
@@ -96,6 +100,21 @@ def load_sidecar(path):
                                  code="sidecar.conflict", file=src, where=b,
                                  fix="remove one of them")
     return Sidecar(**vals, source=src)
+
+
+def _read_capped(path, src):
+    """The sidecar's text, refused past :data:`MAX_SIDECAR_BYTES` before it is parsed: a
+    sidecar holds a few keys, and parsing megabytes would stall the daemon's intake."""
+    with open(path, "rb") as f:
+        data = f.read(MAX_SIDECAR_BYTES + 1)
+    if len(data) > MAX_SIDECAR_BYTES:
+        size = max(path.stat().st_size, len(data))
+        raise InvalidSidecar("the sidecar is %d bytes; a sidecar may have at most %d"
+                             % (size, MAX_SIDECAR_BYTES),
+                             code="sidecar.too_large", file=src,
+                             fix="a sidecar holds a few `key: value` lines (docs/sidecar.md); "
+                                 "write only those")
+    return data.decode("utf-8")
 
 
 # A profile is named, never given by path: a sidecar comes from anyone who can write

@@ -1,0 +1,67 @@
+"""What a new operator meets at the terminal: one exit convention for unknown jobs, no
+traceback into a closed pipe, nothing written for a missing input, and help that lists
+every output."""
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+from hostd import jobs as J
+from hostd.cli import main
+from hostd.commands import jobs as cli
+from hostd.planner import output_names
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_an_unknown_job_is_the_same_error_for_every_job_command(tmp_path, monkeypatch, capsys):
+    store = J.JobStore(tmp_path / "jobs.sqlite")
+    monkeypatch.setattr(cli, "_open", lambda args, need_daemon: (None, store, 1234))
+    rc_job = cli.cmd_job(argparse.Namespace(id="nonexistent", config=None, json=False))
+    err_job = capsys.readouterr().err
+    for action in cli.JOB_ACTIONS:
+        rc = cli.cmd_action(argparse.Namespace(action=action, target="nonexistent", config=None))
+        err = capsys.readouterr().err
+        assert (rc, err) == (rc_job, err_job) and "error jobs.unknown" in err
+    assert store.pending_requests() == []        # nothing was asked of the daemon
+
+
+def test_a_missing_input_writes_nothing(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["plan", "missing.png", "-q"]) == 2
+    assert "heightfield.not_found" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_plan_help_lists_every_output(capsys):
+    try:
+        main(["plan", "--help"])
+    except SystemExit:
+        pass
+    text = " ".join(capsys.readouterr().out.split())
+    for name in output_names("NAME", color=True).values():
+        assert name in text, name
+
+
+def test_a_closed_pipe_ends_the_listing_quietly(tmp_path):
+    store = J.JobStore(tmp_path / "state" / "jobs.sqlite")
+    for i in range(1500):                         # far more than a pipe buffers
+        store.add("part-%04d.png" % i, "part-%04d.png" % i, tmp_path / "x.png", profile="p")
+    store.close()
+    (tmp_path / "hostd.yaml").write_text("state_dir: %s\ndrop_dir: %s\n" % (
+        tmp_path / "state", tmp_path / "drop"))
+    out = subprocess.run("%s -m hostd jobs -c %s | head -n 2" % (sys.executable,
+                                                                  tmp_path / "hostd.yaml"),
+                         shell=True, cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert len(out.stdout.splitlines()) == 2
+    assert "Traceback" not in out.stderr and "BrokenPipe" not in out.stderr, out.stderr
+
+
+def test_waitress_queue_depth_warnings_stay_out_of_the_log():
+    import logging
+
+    from hostd import logs
+    logs.setup(stream=open("/dev/null", "w"))
+    assert not logging.getLogger("waitress.queue").isEnabledFor(logging.WARNING)
+    assert logging.getLogger("waitress.queue").isEnabledFor(logging.ERROR)
