@@ -145,6 +145,8 @@ if method == "isoline":
     flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=prof.flatten.iterations)
     out.update(invalid_edge_fraction=flat.invalid_edge_fraction,
                stretch_edge_fraction=float(np.mean(flat.sigma < lim.s_min - 1e-3)),
+               invalid_area_fraction=flat.invalid_area_fraction,
+               stretch_area_fraction=flat.stretch_area_fraction,
                flipped=int(flat.flipped_triangles))
 else:
     mesh = build_grid_mesh(hf, 1.0)

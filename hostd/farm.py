@@ -20,6 +20,7 @@
 """
 
 import errno
+import glob
 import hashlib
 import json
 import logging
@@ -272,13 +273,26 @@ def archive(src, sidecar, dest_dir, name):
 
     Returns (new input path, new sidecar path or None).
     """
-    dest = unique_path(Path(dest_dir) / name)
+    dest = unique_stem(Path(dest_dir) / name)
     _move(src, dest)
     side = None
     if sidecar and os.path.exists(sidecar):
-        side = unique_path(dest.with_name(dest.stem + ".yaml"))
+        side = dest.with_name(dest.stem + ".yaml")
         _move(sidecar, side)
     return dest, side
+
+
+def unique_stem(path):
+    """``path``, or ``NAME-2.ext`` ..., whose stem no file in its folder has yet: an input
+    filed there owns ``STEM.yaml`` and ``STEM.error.txt``, so ``part.npy`` and
+    ``part.png`` must not share them."""
+    path = Path(path)
+    for i in range(1, 100000):
+        stem = path.stem if i == 1 else "%s-%d" % (path.stem, i)
+        if not any(True for _ in path.parent.glob(glob.escape(stem) + ".*")) \
+                and not os.path.lexists(path.parent / stem):
+            return path.with_name(stem + path.suffix)
+    raise FileExistsError(path)
 
 
 def archive_done(src, sidecar, done_dir, name, when=None):

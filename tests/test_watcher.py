@@ -208,3 +208,20 @@ def test_a_second_hostd_with_the_same_node_id_is_seen_by_the_lease(tmp_path):
     assert Farm(drop, "pi").held_by_another(5.0) is None        # released: no wait
     assert time.monotonic() - started < 1.0
     assert b.renew_lease() is None                              # a stopped is no twin
+
+
+def test_inputs_sharing_a_stem_never_share_their_error_or_sidecar(tmp_path):
+    drop, failed = tmp_path / "drop", tmp_path / "failed"
+    drop.mkdir()
+    for name in ("empty.npy", "empty.png", "empty.yaml"):
+        (drop / name).write_text(name)
+    a, a_side = archive_failed(drop / "empty.npy", drop / "empty.yaml", failed, "empty.npy",
+                               "the array is empty")
+    b, b_side = archive_failed(drop / "empty.png", None, failed, "empty.png",
+                               "the picture is empty")
+    assert (a.name, a_side.name, b.name, b_side) == ("empty.npy", "empty.yaml", "empty-2.png",
+                                                     None)
+    assert (failed / "empty.error.txt").read_text() == "the array is empty\n"
+    assert (failed / "empty-2.error.txt").read_text() == "the picture is empty\n"
+    # A requeue looks for STEM.yaml beside the input: the png has none of its own.
+    assert not b.with_name(b.stem + ".yaml").exists()
