@@ -9,7 +9,7 @@ nodes takes only what it can start soon.
 import logging
 
 from hostd import jobs as J
-from hostd.watcher import name_problem
+from hostd.watcher import name_problem, shown
 
 log = logging.getLogger("hostd.daemon")
 
@@ -23,8 +23,14 @@ class IntakeMixin:
             room = self._claim_room() if room is None else room
             if room <= 0:
                 self.watcher.forget(cand)   # offered again at the next scan
-            elif self._intake(cand):
-                room -= 1
+                continue
+            try:
+                if self._intake(cand):
+                    room -= 1
+            except Exception:
+                # One file's fault must not strand the others of the scan; a claimed one
+                # is found in the claim folder again at the next start.
+                log.exception("%s: could not be taken", shown(cand.rel_path))
 
     def dropped(self):
         """Inputs in the drop folder at the last scan (asked from the web's threads):
@@ -68,7 +74,8 @@ class IntakeMixin:
                       sidecar_path=str(side) if side else None)
         problem = name_problem(name)
         if problem:
-            name = path.name
+            log.warning("%s: %s; taken as %s", shown(rel_path), problem, path.name)
+            name, rel_path = path.name, shown(rel_path)
         try:
             sidecar = load_sidecar(side) if side else None
         except PipelineError as exc:

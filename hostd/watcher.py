@@ -56,6 +56,12 @@ def safe_stem(name, limit=60):
     return stem[:limit]
 
 
+def shown(name):
+    """``name`` as text any page, log or database can hold: bytes that are not UTF-8
+    (carried by Python as surrogates) become U+FFFD."""
+    return os.fsencode(name).decode("utf-8", "replace")
+
+
 def name_problem(name):
     """Why an untrusted file name cannot be taken as is (None when it is fine)."""
     try:

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from hostd import jobs as J
+from hostd.watcher import shown
 
 PAGE_STATES = ("idle", "heating", "printing", "paused", "error", "disconnected")
 _STATE_MAP = {"connecting": "disconnected", "stopped": "disconnected", None: "disconnected"}
@@ -408,7 +409,7 @@ class NodeView:
         drop = Path(self.config.drop_dir)
         inputs = self.daemon.dropped()
         there = self._share.call([], lambda: [os.path.exists(drop / i["file"]) for i in inputs])
-        return [i for i, present in zip(inputs, there) if present]
+        return [dict(i, file=shown(i["file"])) for i, present in zip(inputs, there) if present]
 
     def nodes(self, stale_s=None):
         """Every node's status file on the share, with ``stale`` and ``age_s``."""

@@ -1,0 +1,63 @@
+"""Names a drop folder can hold but a database or page cannot (bytes that are not UTF-8),
+and one file's failure at intake, never block the other files of a scan or the page."""
+
+import os
+import time
+
+from daemon_helpers import in_process_daemon, write_dome
+from hostd.web.app import create_app
+
+
+def _bytes_path(folder, name):
+    return os.fsencode(str(folder)) + b"/" + name
+
+
+def _ticks(d, until, timeout=30):
+    deadline = time.monotonic() + timeout
+    while not until() and time.monotonic() < deadline:
+        d.tick()
+        time.sleep(0.05)
+
+
+def test_a_name_that_is_not_utf8_is_taken_under_a_safe_name(tmp_path):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        drop = d.config.drop_dir
+        write_dome(drop / "good.npy")
+        with open(drop / "good.npy", "rb") as f:
+            data = f.read()
+        with open(_bytes_path(drop, b"top\xffbad.npy"), "wb") as f:
+            f.write(data)
+        (drop / "elsewhere").mkdir()          # a folder of no printer here: left in place
+        with open(_bytes_path(drop / "elsewhere", b"bad\xff\xfename.npy"), "wb") as f:
+            f.write(data)
+        client = create_app(d.config, d.store, d).test_client()
+        _ticks(d, lambda: len(d.store.list()) == 2)
+        names = sorted(j["name"] for j in d.store.list())
+        assert names == ["good.npy", "top_bad.npy"]
+        assert [j["rel_path"] for j in d.store.list() if j["name"] == "top_bad.npy"] \
+            == ["top\ufffdbad.npy"]
+        page = client.get("/")
+        assert page.status_code == 200
+        assert "bad\ufffd\ufffdname.npy" in page.get_data(as_text=True)
+    finally:
+        d.shutdown()
+
+
+def test_one_files_failure_at_intake_leaves_the_others_taken(tmp_path, monkeypatch):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        drop = d.config.drop_dir
+        write_dome(drop / "a.npy")
+        write_dome(drop / "b.npy")
+        real = d._intake
+
+        def faulty(cand):
+            if cand.path.name == "a.npy":
+                raise RuntimeError("a fault of this file alone")
+            return real(cand)
+        monkeypatch.setattr(d, "_intake", faulty)
+        _ticks(d, lambda: len(d.store.list()) == 1)
+        assert [j["name"] for j in d.store.list()] == ["b.npy"]
+    finally:
+        d.shutdown()
