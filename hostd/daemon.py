@@ -220,12 +220,18 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             proc = PlanProcess(job["id"], job["input_path"], job["profile"], outdir,
                                self.config.planning.time_limit_s, self.config.planning.memory_mb)
             self.plans[job["id"]] = proc
-            self.store.set_state(job["id"], J.PLANNING, "planning in process %d" % proc.pid)
+            self.store.set_state(job["id"], J.PLANNING, "planning in process %d" % proc.pid,
+                                 stage=proc.stage())
 
     def _reap_plans(self):
+        now = time.monotonic()
         for job_id, proc in list(self.plans.items()):
             result = proc.poll()
             if result is None:
+                if now >= getattr(proc, "stage_due", 0.0):
+                    proc.stage_due = now + PROGRESS_S
+                    with self._full_ok():   # a courtesy to the page, never a reason to stop
+                        self.store.update(job_id, stage=proc.stage())
                 continue
             del self.plans[job_id]
             job = self.store.get(job_id)
@@ -235,7 +241,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             else:
                 # Whatever the plan wrote (an error file, or the pictures of a plan
                 # that is not printable) goes to the job's outbox for a person.
-                outbox = self._outbox(job)
+                outbox = self._outbox(job, fresh=True)
                 for f in Path(proc.outdir).iterdir():
                     if f.is_file() and f.name != "result.json":
                         shutil.copy2(f, outbox / f.name)
@@ -243,15 +249,22 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                 text = result.get("text") or result.get("message") or "planning failed"
                 if result.get("fix") and "Fix:" not in text:
                     text += ". Fix: " + result["fix"]
-                self._fail(job, text, result.get("code"))
+                self.store.update(job_id, outbox=str(outbox))
+                self._fail(self.store.get(job_id), text, result.get("code"))
 
-    def _outbox(self, job):
+    def _outbox(self, job, fresh=False):
+        """The job's outbox folder; ``fresh`` empties it first: each attempt's outputs
+        replace the last attempt's as a whole (a requeued job shows only what it made)."""
         d = Path(self.config.outbox_dir) / job["id"]
+        if fresh and d.is_dir():
+            for f in d.iterdir():
+                if f.is_file() or f.is_symlink():
+                    f.unlink()
         d.mkdir(parents=True, exist_ok=True)
         return d
 
     def _ready(self, job, message):
-        outbox = self._outbox(job)
+        outbox = self._outbox(job, fresh=True)
         self.cache.export(job["plan_key"], outbox, Path(job["name"]).stem if not
                           name_problem(job["name"]) else Path(job["input_path"]).stem)
         wait = decision(report_in(outbox))

@@ -51,7 +51,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     started_at REAL,
     finished_at REAL,
     seq INTEGER NOT NULL,
-    decision TEXT                  -- why a ready plan waits for a person (outside limits)
+    decision TEXT,                 -- why a ready plan waits for a person (outside limits)
+    stage TEXT                     -- while planning: the stage and the time so far
 );
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);
 CREATE TABLE IF NOT EXISTS events (
@@ -85,7 +86,7 @@ COMMIT;
 _FIELDS = ("name", "rel_path", "input_path", "sidecar_path", "input_hash", "target", "profile",
            "printer", "priority", "copies", "copies_done", "state", "progress", "last_line",
            "error", "error_code", "plan_key", "outbox", "node_id", "started_at", "finished_at",
-           "decision")
+           "decision", "stage")
 
 
 _BUSY_TIMEOUT_S = 30.0
@@ -198,8 +199,9 @@ class JobStore:
                 self.db.execute("ALTER TABLE printers ADD COLUMN held TEXT")
             # ... and before a plan could wait for a person's decision.
             cols = {r[1] for r in self.db.execute("PRAGMA table_info(jobs)")}
-            if "decision" not in cols:
-                self.db.execute("ALTER TABLE jobs ADD COLUMN decision TEXT")
+            for col in ("decision", "stage"):
+                if col not in cols:
+                    self.db.execute("ALTER TABLE jobs ADD COLUMN %s TEXT" % col)
         except sqlite3.OperationalError:
             if self.db.in_transaction:
                 self.db.rollback()

@@ -71,6 +71,11 @@ class PlanProcess:
                 "fix": "raise planning.memory_mb in hostd.yaml or use a smaller input"
                        if memory else "try again with `hostd requeue`; report it if it repeats"}
 
+    def stage(self):
+        """What the plan is doing, from the child's ``stage.json``: e.g. ``flatten, 23 s``."""
+        name = (_read_result(self.outdir / "stage.json") or {}).get("stage") or "starting"
+        return "%s, %d s" % (name, time.monotonic() - self.started)
+
     def kill(self):
         if self.proc.poll() is None:
             self.proc.kill()
@@ -145,6 +150,20 @@ def _disk_full(outdir):
                    "set outbox_dir to a larger disk, then `hostd requeue` the job"}
 
 
+def _stage_writer(outdir):
+    """The pipeline's progress callback in the child: each stage's name and message into
+    ``stage.json``, which the daemon shows while the plan runs."""
+    from hostd.outputs import atomic_write, json_text
+
+    def progress(stage, message):
+        try:
+            atomic_write(Path(outdir) / "stage.json", json_text({"stage": stage,
+                                                                 "message": message}))
+        except OSError:
+            pass   # progress is a courtesy; the plan goes on
+    return progress
+
+
 def child_main(argv):
     args = json.loads(argv[0])
     _die_with_parent(args.get("parent_pid"))
@@ -160,7 +179,8 @@ def child_main(argv):
         from hostd import planner
         from pipeline.profiles.profile import load_profile
         profile = load_profile(args["profile"])
-        result = plan_result(planner.run(args["input"], profile, outdir))
+        result = plan_result(planner.run(args["input"], profile, outdir,
+                                         progress=_stage_writer(outdir)))
     except PipelineError as exc:
         result = dict(exc.to_dict(), ok=False)
     except MemoryError:

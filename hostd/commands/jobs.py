@@ -83,10 +83,19 @@ def cmd_jobs(args):
     print("%-22s %-11s %-10s %5s %-3s %-19s %s" % ("ID", "STATE", "PRINTER", "PROG", "PRI",
                                                   "CREATED", "NAME"))
     for r in rows:
-        print("%-22s %-11s %-10s %4.0f%% %3d %-19s %s" % (
+        print("%-22s %-11s %-10s %4.0f%% %3d %-19s %s%s" % (
             r["id"], r["state"], r["printer"] or "-", 100 * (r["progress"] or 0), r["priority"],
-            _when(r["created_at"]), r["rel_path"]))
+            _when(r["created_at"]), r["rel_path"], _doing(r)))
     return 0
+
+
+def _doing(job):
+    """What a job waits on or is doing, after its name: the plan's stage, or a decision."""
+    if job["state"] == "planning" and job.get("stage"):
+        return "  (planning: %s)" % job["stage"]
+    if job.get("decision"):
+        return "  (waits for `hostd approve %s`)" % job["id"]
+    return ""
 
 
 def cmd_job(args):
@@ -96,8 +105,10 @@ def cmd_job(args):
         job = store.require(args.id)
     except HostdError as exc:
         return _fail(exc)
-    for key in ("id", "name", "rel_path", "state", "printer", "profile", "priority", "copies",
-                "progress", "last_line", "input_path", "outbox", "error"):
+    for key in ("id", "name", "rel_path", "state", "stage", "decision", "printer", "profile",
+                "priority", "copies", "progress", "last_line", "input_path", "outbox", "error"):
+        if key == "stage" and job["state"] != "planning":
+            continue
         value = job[key]
         if key == "progress":
             value = "%.1f %%" % (100 * (value or 0))

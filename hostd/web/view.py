@@ -298,6 +298,7 @@ class NodeView:
                 "copies_done", "progress", "error", "error_code", "created_at", "updated_at",
                 "started_at", "finished_at", "decision")
         info = {k: job.get(k) for k in keys}
+        info["stage"] = job.get("stage") if job["state"] == J.PLANNING else None
         files = self._share.call([], outbox_files, job.get("outbox"))
         info["files"] = files
         stem = next((f[:-len(".toolpath.png")] for f in files if f.endswith(".toolpath.png")),

@@ -40,6 +40,10 @@
       location.reload();
       return;
     }
+    (s.queue || []).forEach(function (j) {
+      var el = document.querySelector('[data-stage-of="' + CSS.escape(j.id) + '"]');
+      if (el) el.textContent = j.stage ? ": " + j.stage : "";
+    });
     s.printers.forEach(function (p) {
       var card = document.querySelector('[data-printer="' + CSS.escape(p.name) + '"]');
       if (!card) return;
