@@ -138,6 +138,12 @@ class ControlMixin:
         if slot.job_id is not None:
             slot.printer.resume()
             self.store.event(slot.job_id, "resumed", "resumed by a person")
+        elif slot.state == "error":
+            # A printer that stopped answering and came back stays in error until its
+            # link starts over: a person resuming it is the sign to reconnect.
+            slot.error = None
+            slot.connect_async()
+            return "resumed %s: reconnecting" % name
         return "resumed %s" % name
 
 

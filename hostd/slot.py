@@ -60,6 +60,16 @@ class Slot:
     def state(self):
         return self.printer.state if self.printer is not None else "disconnected"
 
+    @property
+    def last_error(self):
+        """Why the printer is not working (a failed connect, or the link's own error), or
+        None while it works."""
+        if self.error:
+            return self.error
+        if self.printer is not None and self.state in ("error", "disconnected"):
+            return self.printer.last_error
+        return None
+
     def available(self):
         return self.job_id is None and not self.paused and self.state == "idle"
 

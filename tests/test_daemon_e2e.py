@@ -14,6 +14,7 @@ import pytest
 from daemon_helpers import (FAST_SIM, all_files, cli_jobs, daemon, gcode_commands, hostd, jobs,
                             states,
                             wait_for, write_config, write_dome)
+from hostd.feed import job_feed
 from printer_helpers import job_commands
 
 
@@ -63,7 +64,9 @@ def test_three_files_one_invalid(tmp_path, dome, pty_sim):
                      key=lambda j: j["started_at"])
     expected = []
     for job in printed:
-        expected += gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
+        gcode = next(Path(job["outbox"]).glob("*.gcode"))
+        # Each job starts with its feed rate (full speed unless the link cannot keep up).
+        expected += job_feed(gcode, 250000).commands + gcode_commands(gcode)
     assert job_commands(sim) == expected
     failed = share / "failed"
     reason = (failed / "broken.error.txt").read_text()
@@ -297,7 +300,8 @@ def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pt
                  what="done")
         assert d.stop() == 0
     job = jobs(cfg)[0]
-    gcode = gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
+    path = next(Path(job["outbox"]).glob("*.gcode"))
+    gcode = job_feed(path, 115200).commands + gcode_commands(path)
     done = job_commands(sim)
     # Exactly the file, with the profile's park and unpark between two of its lines.
     k = next(i for i, (a, b) in enumerate(zip(done, gcode)) if a != b)
@@ -322,5 +326,6 @@ def test_sidecar_copies_print_the_plan_that_many_times(tmp_path, dome, pty_sim):
         assert d.stop() == 0
     job = jobs(cfg)[0]
     assert job["copies"] == 2 and job["copies_done"] == 2
-    gcode = gcode_commands(next(Path(job["outbox"]).glob("*.gcode")))
+    path = next(Path(job["outbox"]).glob("*.gcode"))
+    gcode = job_feed(path, 250000).commands + gcode_commands(path)
     assert job_commands(sim) == gcode + gcode

@@ -308,7 +308,8 @@ class Firmware:
     def _line_faults(self, number, now):
         config = self.config
         for name, line in (("runaway", config.fault_runaway_line), ("reset", config.fault_reset_line),
-                           ("disconnect", config.fault_disconnect_line)):
+                           ("disconnect", config.fault_disconnect_line),
+                           ("stall", config.fault_stall_line)):
             if line and number == line and name not in self._fired:
                 self._fired.add(name)
                 if name == "runaway":

@@ -53,6 +53,7 @@ class Simulator:
         self._host = False
         self._boot_at = None
         self._reopen_at = None
+        self._stalled_until = 0.0
         self._in = bytearray()        # bytes read from the pty, not yet "arrived"
         self._in_start = 0.0          # when the first byte of _in starts arriving
         self._out = deque()           # (release time, bytes)
@@ -130,6 +131,9 @@ class Simulator:
             else:
                 time.sleep(min(_IDLE_POLL_S, self._reopen_at - now))
             return
+        if now < self._stalled_until:
+            time.sleep(min(_IDLE_POLL_S, self._stalled_until - now))
+            return
         wait_s = self._next_deadline(now) - now
         host, readable = self.endpoint.poll(max(0.0, min(wait_s, _MAX_WAIT_S)))
         now = self.clock()
@@ -177,6 +181,10 @@ class Simulator:
         self.firmware.fault = None
         if kind == "reset":
             self._reset(now)
+        elif kind == "stall":
+            # Nothing is read, run or answered until it recovers; the host's bytes wait in
+            # the port's buffer meanwhile, as they would for a hung board.
+            self._stalled_until = now + self.config.stall_s
         elif kind == "disconnect":
             # The device vanishes (USB unplugged) and comes back later under the same link.
             self.endpoint.close(unlink=True)

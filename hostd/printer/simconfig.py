@@ -29,6 +29,9 @@ fault_reset_line     0        spurious reset (new ``start`` banner) on executing
 fault_disconnect_line 0       the port disappears on executing line N ...
 reconnect_s          0.5      ... and returns after this many seconds (new pty, same link)
 fault_runaway_line   0        thermal runaway on executing line N (firmware halts)
+fault_stall_line     0        the firmware stops answering on executing line N ...
+stall_s              60       ... for this many seconds (real time), then carries on where
+                              it was, as a board whose main loop hung and recovered
 ==================== ======== ==========================================================
 
 Line-triggered faults fire once; line numbers are the host's ``N`` numbers.
@@ -65,6 +68,8 @@ class SimConfig:
     fault_disconnect_line: int = 0
     reconnect_s: float = 0.5
     fault_runaway_line: int = 0
+    fault_stall_line: int = 0
+    stall_s: float = 60.0
 
     @classmethod
     def from_url(cls, url):

@@ -362,7 +362,7 @@ class NodeView:
                 live = link_job.snapshot()
             out.append(self._printer_dict(slot.name, slot.state, slot.paused,
                                           slot.job_id, live, temps, stats,
-                                          starvation, slot.error, hist if history else None,
+                                          starvation, slot.last_error, hist if history else None,
                                           slot.config.profile, held=slot.held))
         return out
 
@@ -375,6 +375,8 @@ class NodeView:
              "temperatures": temps, "lines_sent": stats.get("lines_sent"),
              "resends": stats.get("resends"), "starvation_s": starvation, "error": error,
              "held": held,
+             # A printer that is not answering reports nothing new: its readings are old.
+             "temperatures_stale": page_state(state, paused) in ("error", "disconnected"),
              "job": self.job_info(job, live) if job else None}
         if history is not None:
             d["history"] = history
