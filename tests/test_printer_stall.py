@@ -61,3 +61,21 @@ def test_a_printer_that_stalled_and_came_back_reconnects_when_resumed(tmp_path, 
         assert slot.last_error is None
     finally:
         d.shutdown()
+
+
+def test_after_a_thermal_runaway_the_card_says_why(tmp_path):
+    port = "sim://?time_scale=0&advanced_ok=1&boot_s=0&fault_runaway_line=150"
+    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000, "port": port}]
+    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
+    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
+    d = daemon_mod.Daemon(config, notifier=Pings())
+    d.setup()
+    try:
+        write_dome(d.config.drop_dir / "dome.npy")
+        _ticks(d, lambda: d.store.list() and d.store.list()[0]["state"] == J.FAILED,
+               what="the failure")
+        card = NodeView(d.config, d, db_path=d.config.db_path).printers()[0]
+        assert card["state"] == "error" and "Thermal Runaway" in card["error"]
+        assert card["temperatures_stale"]
+    finally:
+        d.shutdown()
