@@ -15,6 +15,7 @@ from pathlib import Path
 from flask import Blueprint, abort, current_app, jsonify, request, send_file
 
 from hostd import jobs as J
+from hostd.errors import HostdError
 from hostd.farm import unique_path
 from hostd.watcher import INPUT_SUFFIXES, ignored, name_problem
 
@@ -85,6 +86,9 @@ def job_action(job_id, action):
         if job["state"] != J.PRINTING or not job["printer"]:
             return 409, dict(ok=False, error="job %s is %s, not printing" % (job_id, job["state"]))
         return ask_daemon(action, job["printer"])
+    if action == "cancel" and job["state"] == J.PRINTING:
+        return _printer_first(action, job["id"], lambda slot: slot.job_id == job["id"],
+                              lambda slot: slot.printer.cancel())
     return ask_daemon(action, job["id"])
 
 
@@ -92,14 +96,35 @@ def printer_action(name, action):
     v = view()
     if v.config.printer(name) is None:
         return 404, dict(ok=False, error="no printer %s on this node" % name)
-    if action == "estop" and v.daemon is not None:
-        for slot in v.daemon.slots:
-            if slot.name == name and slot.printer is not None:
-                try:
-                    slot.printer.estop()      # M112 now; the run loop records it below
-                except Exception as exc:      # not connected: the run loop says so
-                    current_app.logger.warning("estop %s: %s", name, exc)
+    if action == "estop":
+        return _printer_first(action, name, lambda slot: slot.name == name, _estop)
     return ask_daemon(action, name)
+
+
+def _estop(slot):
+    slot.printer.estop()              # M112 now
+    slot.paused = True                # and nothing new starts there, recorded or not
+
+
+def _printer_first(action, target, which, act):
+    """Cancel and emergency stop act on the printer itself (when the daemon runs in this
+    process), then ask the run loop to record them: a full disk, which refuses the
+    request, must never stop a person from stopping a print."""
+    acted = False
+    for slot in getattr(view().daemon, "slots", ()):
+        if which(slot) and slot.printer is not None:
+            try:
+                act(slot)
+                acted = True
+            except Exception as exc:      # not connected: the run loop says so
+                current_app.logger.warning("%s %s: %s", action, target, exc)
+    try:
+        return ask_daemon(action, target)
+    except HostdError as exc:
+        if not acted or exc.code != J.DISK_FULL:
+            raise
+        return 202, dict(ok=True, result="%s %s: sent to the printer; %s, so it is recorded "
+                                         "when there is room" % (action, target, exc.message))
 
 
 def move_in_queue(job_id, where):
