@@ -7,6 +7,11 @@ itself; outside them it is planned, but a person decides (the daemon holds the j
 ``ready`` until someone approves it).
 """
 
+# A shrink outside [s_min, s_max] by more than this counts as one the material cannot
+# make: 1e-3 is far below what layer thickness can resolve (the shrink curve spans ~0.34
+# over ~0.1 mm of thickness) and well above solver round-off.
+SIGMA_TOL = 1e-3
+
 # Codes of the problems that hold a plan for a person's decision.
 CODES = ("printable.invalid_area", "printable.displacement", "printable.coverage")
 

@@ -290,7 +290,7 @@ def test_ply_writes_to_a_file_object_and_without_colours():
 
 
 def test_pictures_count_invalid_edges_by_the_reports_criterion():
-    from pipeline.layout.isoline import SIGMA_TOL
+    from pipeline.printable import SIGMA_TOL
     from pipeline.pictures.render import _split_by_validity
     sigma = np.array([0.343 + SIGMA_TOL / 2, 0.343 + 2 * SIGMA_TOL, -SIGMA_TOL / 2,
                       -2 * SIGMA_TOL, 0.1])

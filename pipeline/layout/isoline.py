@@ -31,16 +31,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import edge_index, edge_lengths, signed_areas_2d
+from pipeline.printable import SIGMA_TOL
 from pipeline.mechanics.constraints import topology
 from pipeline.mechanics.pd import EdgeTargets, PDSystem, minimize
 
 DEFAULT_WEIGHTS = {"bridge": 1.0, "printing": 1.0, "bending": 0.025, "shear": 0.25,
                    "flattening": 0.3, "stretching": 1.0, "spreading": 0.5}
-
-# Edges whose sigma leaves [s_min, s_max] by more than this count as invalid:
-# 1e-3 is far below what layer thickness can resolve (the shrink curve spans
-# ~0.34 over ~0.1 mm of thickness) and well above solver round-off.
-SIGMA_TOL = 1e-3
 
 
 @dataclass

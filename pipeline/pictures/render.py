@@ -15,7 +15,7 @@ from pipeline.pictures.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, WHI
                              font, fmt_number, framed, nice_ceil, scale_bar, stat_lines, swatch,
                              text_size, to_image)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
-from pipeline.layout.isoline import SIGMA_TOL
+from pipeline.printable import SIGMA_TOL
 from pipeline.pictures.raster import dash_segments, draw_segments, rasterize_triangles
 from pipeline.pictures.shading import camera_basis, project, shaded_view, view_fit
 
