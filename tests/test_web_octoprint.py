@@ -30,7 +30,7 @@ def fake_daemon(node, state="printing", with_job=True):
                                      "timeouts": 0})
     slot = SimpleNamespace(name="sim", printer=printer, state=state, paused=False, held=None,
                            job_id=node.printing if with_job else None,
-                           link_job=FakeLinkJob(1, 4) if with_job else None, error=None,
+                           link_job=FakeLinkJob(1, 4) if with_job else None, error=None, last_error=None,
                            config=node.config.printers[0])
     return SimpleNamespace(slots=[slot], problem="share: gone", dropped=lambda: [
         {"file": "a.npy", "bytes": 10, "complete": False, "this_node": True}],
@@ -145,6 +145,16 @@ def test_metrics(live):
     m = _samples(live.client.get("/metrics").get_data(as_text=True))
     assert m[("hostd_drop_folder_files", (("state", "copying"),))] == 1
     assert m[("hostd_drop_folder_files", (("state", "waiting"),))] == 0
+
+
+def test_prints_total_never_goes_down_after_a_requeue(live):
+    def cancelled():
+        m = _samples(live.client.get("/metrics").get_data(as_text=True))
+        return m[("hostd_prints_total", (("result", "cancelled"),))]
+    live.store.set_state(live.queued, "cancelled", "cancelled by a person")
+    assert cancelled() == 1
+    live.store.set_state(live.queued, "queued", "requeued by a person")
+    assert cancelled() == 1
 
 
 def test_page_shows_live_values(live):

@@ -1,7 +1,8 @@
 """``/metrics`` in Prometheus text format, collected from the store and the daemon at scrape time.
 
 - ``hostd_jobs{state}``                               jobs per state (gauge)
-- ``hostd_prints_total{result}``                      finished jobs: done, failed, cancelled, interrupted
+- ``hostd_prints_total{result}``                      jobs that ended: done, failed, cancelled,
+  interrupted (counted from the store's events, so a requeue never takes one back)
 - ``hostd_temperature_celsius{printer,heater}``       and ``hostd_temperature_target_celsius``
 - ``hostd_printer_up{printer,state}``                 1 for the printer's current state
 - ``hostd_serial_lines_sent_total{printer}``, ``hostd_serial_resends_total{printer}``
@@ -56,8 +57,9 @@ class _Collector:
             jobs.add_metric([state], counts.get(state, 0))
         yield jobs
         prints = CounterMetricFamily("hostd_prints", "Finished jobs by result", labels=["result"])
+        ended = v.endings()
         for state in J.FINISHED:
-            prints.add_metric([state], counts.get(state, 0))
+            prints.add_metric([state], ended.get(state, 0))
         yield prints
 
         temp = GaugeMetricFamily("hostd_temperature_celsius", "Heater temperature",

@@ -262,6 +262,14 @@ class NodeView:
         out.update({r[0]: r[1] for r in rows})
         return out
 
+    def endings(self):
+        """How many times jobs ended in each finished state, ever: a counter, read from
+        the events (a requeued job leaves its state, never its history)."""
+        rows = self.store.db.execute(
+            "SELECT kind, COUNT(*) FROM events WHERE kind IN (?, ?, ?, ?) GROUP BY kind",
+            J.FINISHED)
+        return {r[0]: r[1] for r in rows}
+
     def jobs(self, state=None, limit=200):
         sql, args = "SELECT * FROM jobs", []
         if state:
