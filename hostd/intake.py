@@ -69,6 +69,7 @@ class IntakeMixin:
 
     def _add_job(self, name, rel_path, path, side, target):
         from pipeline.errors import PipelineError
+        from pipeline.input.heightfield import check_file
         from pipeline.input.sidecar import load_sidecar
         values = dict(target=target, node_id=self.config.node_id,
                       sidecar_path=str(side) if side else None)
@@ -77,6 +78,8 @@ class IntakeMixin:
             log.warning("%s: %s; taken as %s", shown(rel_path), problem, path.name)
             name, rel_path = path.name, shown(rel_path)
         try:
+            # A broken file is refused as it is taken: junk must not queue for a plan.
+            check_file(path)
             sidecar = load_sidecar(side) if side else None
         except PipelineError as exc:
             job_id = self.store.add(name, rel_path, path, **values)

@@ -61,3 +61,30 @@ def test_one_files_failure_at_intake_leaves_the_others_taken(tmp_path, monkeypat
         assert [j["name"] for j in d.store.list()] == ["b.npy"]
     finally:
         d.shutdown()
+
+
+def test_junk_is_refused_as_it_is_taken_without_a_plan(tmp_path, monkeypatch):
+    from hostd import daemon as daemon_mod
+    from hostd import jobs as J
+    started = []
+    real = daemon_mod.PlanProcess
+
+    def counting(job_id, *args, **kw):
+        started.append(job_id)
+        return real(job_id, *args, **kw)
+    monkeypatch.setattr(daemon_mod, "PlanProcess", counting)
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        drop = d.config.drop_dir
+        for i in range(30):
+            (drop / ("junk-%02d.npy" % i)).write_bytes(b"GIF89a not an array %d" % i)
+        write_dome(drop / "good.npy")
+        _ticks(d, lambda: len(d.store.list()) == 31 and all(
+            j["state"] != J.QUEUED for j in d.store.list()))
+        jobs = {j["name"]: j for j in d.store.list()}
+        junk = [j for n, j in jobs.items() if n.startswith("junk")]
+        assert all(j["state"] == J.FAILED and j["error_code"] == "heightfield.content_mismatch"
+                   for j in junk)
+        assert started == [jobs["good.npy"]["id"]]
+    finally:
+        d.shutdown()

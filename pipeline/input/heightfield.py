@@ -71,18 +71,7 @@ def load(path, profile=None, max_pixels=None):
     """
     path = Path(path)
     name = str(path)
-    if not path.is_file():
-        raise _fail("heightfield.not_found", "input file not found", name,
-                    "check the path" if not path.is_dir() else "give a file, not a directory")
-    size_bytes = path.stat().st_size
-    if size_bytes == 0:
-        raise _fail("heightfield.empty", "input file is empty (0 bytes)", name,
-                    "the upload or copy did not finish; send the file again")
-    ext = path.suffix.lower()
-    if ext not in IMAGE_EXT + ARRAY_EXT + MESH_EXT:
-        raise _fail("heightfield.unsupported_type", "unsupported input type %r" % ext, name,
-                    "use a grayscale PNG/TIFF, .npy/.npz in mm, or an STL/OBJ/PLY/GLB mesh")
-    _check_magic(path, ext)
+    ext = check_file(path)
     sidecar = load_sidecar(sidecar_path(path))
     # Without a profile, the profile schema's defaults apply.
     defaults, limits = (profile.defaults, profile.validate) if profile is not None else (
@@ -105,6 +94,27 @@ def load(path, profile=None, max_pixels=None):
     if color is None:
         color = _read_color(path, z.shape, max_pixels)
     return HeightField(z, float(pixel_mm), color=color, source=name), sidecar
+
+
+def check_file(path):
+    """The checks that need only a file's name and first bytes (it exists, is not empty, is
+    of a type hostd reads, and its content is of that type): cheap enough to run on every
+    file as it is taken, before a plan is spent on it. Returns the lower-case extension;
+    raises :class:`InvalidHeightField`."""
+    path = Path(path)
+    name = str(path)
+    if not path.is_file():
+        raise _fail("heightfield.not_found", "input file not found", name,
+                    "check the path" if not path.is_dir() else "give a file, not a directory")
+    if path.stat().st_size == 0:
+        raise _fail("heightfield.empty", "input file is empty (0 bytes)", name,
+                    "the upload or copy did not finish; send the file again")
+    ext = path.suffix.lower()
+    if ext not in IMAGE_EXT + ARRAY_EXT + MESH_EXT:
+        raise _fail("heightfield.unsupported_type", "unsupported input type %r" % ext, name,
+                    "use a grayscale PNG/TIFF, .npy/.npz in mm, or an STL/OBJ/PLY/GLB mesh")
+    _check_magic(path, ext)
+    return ext
 
 
 def _check_magic(path, ext):
