@@ -62,6 +62,29 @@ def test_farm_view_marks_stale_nodes(tmp_path):
     n.store.close()
 
 
+def test_the_page_answers_while_many_clients_trickle_headers(tmp_path):
+    import socket
+    from dataclasses import replace
+    config = make_config(tmp_path)
+    config = replace(config, web=replace(config.web, port=0))
+    for d in ("drop_dir", "state_dir", "outbox_dir"):
+        getattr(config, d).mkdir(parents=True, exist_ok=True)
+    web = server.start(config)
+    host, port = "127.0.0.1", int(web.url.rsplit(":", 1)[1][:-1])
+    slow = []
+    try:
+        for _ in range(150):              # more than waitress's default connection limit
+            s = socket.create_connection((host, port), timeout=5)
+            s.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+            slow.append(s)
+        status, body = get_json(web.url + "healthz", timeout=5)
+        assert status == 200 and body["ok"] is True
+    finally:
+        for s in slow:
+            s.close()
+        web.stop()
+
+
 def test_waitress_serves_and_stops(tmp_path):
     from dataclasses import replace
     config = make_config(tmp_path)

@@ -11,7 +11,17 @@ import socket
 import threading
 
 log = logging.getLogger("hostd.web")
-THREADS = 4
+THREADS = 6
+# A farm's page must stay up for the people who need it while slow or stuck clients hold
+# connections: room for many idle sockets (cheap), and an idle one is closed after
+# CHANNEL_TIMEOUT_S (waitress checks every CLEANUP_S).
+CONNECTION_LIMIT = 500
+CHANNEL_TIMEOUT_S = 30
+CLEANUP_S = 5
+# A response larger than this makes its thread wait for the client to read it: above any
+# outbox file (the largest G-code is ~70 MB), a slow reader's download is left to the
+# server's buffer (on disk past 1 MB) and never holds one of the few threads.
+OUTPUT_BUFFER_BYTES = 256 << 20
 
 
 class WebServer:
@@ -64,6 +74,9 @@ def _start(config, store, daemon, threads):
     try:
         server = create_server(app, host=config.web.host, port=config.web.port, threads=threads,
                                ident="hostd", clear_untrusted_proxy_headers=True,
+                               connection_limit=CONNECTION_LIMIT,
+                               channel_timeout=CHANNEL_TIMEOUT_S, cleanup_interval=CLEANUP_S,
+                               outbuf_high_watermark=OUTPUT_BUFFER_BYTES,
                                max_request_body_size=app.config["MAX_CONTENT_LENGTH"] + 65536)
     except OSError as exc:
         log.warning("web page not started: cannot listen on %s:%s (%s); set web.port in "
