@@ -104,7 +104,6 @@ def write_outputs(st, plan):
     colors = figure.colormap(disp, 0.0, vmax, name="displacement")
     plyio.write_ply(st.path(name + ".simulated.ply"), sim.vertices, mesh.faces,
                     vertex_colors=colors)
-    diameter = plan.report["heightfield"]["longest_diameter_mm"]
     if hasattr(flat, "direction"):
         pts, ticks, sig = render.direction_ticks(flat.xy, mesh.faces, flat.direction, flat.sigma)
         st.write_image(name + ".stress.png", render.stress_image(
@@ -116,8 +115,7 @@ def write_outputs(st, plan):
             title="%s: flat layout, shrink per printing edge" % name))
     st.write_image(name + ".preview.png", render.preview_image(
         mesh.vertices, mesh.faces, sim.vertices, disp,
-        title="%s (%.0f mm): target vs. simulated after shrinking%s" % (
-            name, diameter, _fit_note(plan))))
+        title=preview_title(plan)))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(name + ".input.png", hfimage.heightfield_image(
@@ -150,6 +148,14 @@ def _baud_for(baud, factor):
     """The smallest common baud rate at least ``baud * factor``."""
     rates = (115200, 230400, 250000, 460800, 500000, 921600, 1000000)
     return next((r for r in rates if r >= baud * factor), rates[-1])
+
+
+def preview_title(plan):
+    """The preview's title: the job, its size, the layout method that planned it, and the
+    relief it was lowered to when the fit lowered it."""
+    return "%s (%.0f mm, %s method): target vs. simulated after shrinking%s" % (
+        plan.name, plan.report["heightfield"]["longest_diameter_mm"],
+        plan.report["flatten"]["method"], _fit_note(plan))
 
 
 def _fit_note(plan):

@@ -66,6 +66,8 @@ def test_a_plan_outside_the_limits_is_planned_but_not_printable(tmp_path, monkey
     assert "printable.coverage" in [w["code"] for w in r["warnings"]]
     loose = plan_file(path, load_profile("generic-0.5mm"))
     assert loose.printable and loose.report["gate"]["outside"] == []
+    from hostd.planner import preview_title
+    assert "isoline method" in preview_title(loose)
 
 
 def _daemon(tmp_path):
@@ -103,6 +105,7 @@ def test_the_daemon_holds_it_at_ready_until_a_person_approves(tmp_path, monkeypa
         client = create_app(d.config, d.store, d).test_client()
         page = client.get("/jobs/%s" % job()["id"]).get_data(as_text=True)
         assert "Print anyway" in page and "Waits for you" in page and "{&#39;code" not in page
+        assert "Layout method</dt><dd>isoline" in page
         assert "Print anyway" in client.get("/").get_data(as_text=True)
         assert d._do_approve(job()["id"]).startswith("approved")
         assert job()["decision"] is None
