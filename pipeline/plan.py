@@ -9,7 +9,7 @@ every intermediate result and the ``report`` dict whose keys other tools read
 """
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -209,6 +209,9 @@ def plan_file(path, profile, progress=None, force_fit=False):
     hf, _ = hfio.coarsen(hf, profile.validate.working_pixel_mm)
     timing["load"] = time.perf_counter() - t
 
+    if sidecar.method and sidecar.method != profile.flatten.method:
+        profile = replace(profile, flatten=replace(profile.flatten, method=sidecar.method))
+        result.profile = profile
     opts = sidecar_settings(sidecar, profile)
     t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])
     hf, vrep = validate(hf, opts["max_fill_mm"], bed_mm=profile.bed_mm)
@@ -228,9 +231,44 @@ def plan_file(path, profile, progress=None, force_fit=False):
     result.report = _report(path, profile, result, vrep, srep, timing)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
+    if profile.flatten.method == "isoline" and not result.printable:
+        result.report["other_method"] = _free_would(hf, profile)
+        result.problems += other_method_problems(result.report["other_method"], path.stem)
     result.report.update(gate=section, printable=result.printable,
                          needs_decision=result.needs_decision, warnings=list(result.problems))
     return result
+
+
+# The free method's quick look: a coarser grid and fewer iterations than its plan (a few
+# seconds on a 175 mm tile), enough to tell whether the sheet can form.
+QUICK_GRID_MM = 2.0
+QUICK_ITERATIONS = 100
+
+
+def _free_would(hf, profile):
+    """Whether the free layout method would form this sheet: its invalid area and folds."""
+    lim = profile.shrink_limits
+    mesh = build_grid_mesh(hf, max(profile.mesh.grid_mm, QUICK_GRID_MM))
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
+    would = (flat.flipped == 0
+             and flat.invalid_area_fraction <= profile.printable.max_invalid_area)
+    return {"method": "free", "invalid_area_fraction": float(flat.invalid_area_fraction),
+            "flipped": int(flat.flipped), "would_form": bool(would)}
+
+
+def other_method_problems(other, name):
+    """A note on a plan that is not printable: whether the other layout method forms it."""
+    if not other["would_form"]:
+        return [{"code": "plan.other_method",
+                 "message": "the free layout method does not form it either (%.0f %% of the "
+                            "sheet outside what the material can make, %d folded triangles)"
+                            % (100 * other["invalid_area_fraction"], other["flipped"]),
+                 "fix": "lower or smooth the relief (height_mm, smooth_mm in %s.yaml)" % name}]
+    return [{"code": "plan.other_method",
+             "message": "the free layout method forms this sheet (%.1f %% of it outside what "
+                        "the material can make, no folds)" % (100 * other["invalid_area_fraction"]),
+             "fix": "write `method: free` in %s.yaml (or plan with `hostd plan --method free`)"
+                    % name}]
 
 
 def _isoline_sheet(result, hf, profile, path, stage, timing):

@@ -28,6 +28,7 @@ class Sidecar:
     smooth_mm : smoothing scale before meshing, mm (overrides the profile)
     copies : how many sheets to print (>= 1); priority : queue priority (daemon)
     fit : ``auto`` or ``off``: lower the relief to what forms (free layout method)
+    method : ``isoline`` or ``free``: the layout method (overrides the profile's)
     source : the sidecar file, or None when there is none
     """
 
@@ -40,6 +41,7 @@ class Sidecar:
     min_prominence_mm: float = None
     smooth_mm: float = None
     fit: str = None
+    method: str = None
     copies: int = 1
     priority: int = 0
     source: str = None
@@ -50,7 +52,7 @@ _SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
                    "height_mm": ("float", True), "height_scale": ("float", True),
                    "profile": ("str", False), "max_fill_mm": ("float", False),
                    "min_prominence_mm": ("float", False), "smooth_mm": ("float", False),
-                   "copies": ("int", True), "fit": ("str", False),
+                   "copies": ("int", True), "fit": ("str", False), "method": ("str", False),
                    "priority": ("int", None)}
 
 
@@ -122,6 +124,16 @@ def _read_capped(path, src):
 _PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
+# Keys with a few words allowed: (the words, the fix that explains them).
+_CHOICES = {
+    "fit": (("auto", "off"), "write `fit: auto` (lower the relief to what forms) or `fit: off` "
+                             "(plan the relief as given)"),
+    "method": (("isoline", "free"), "write `method: isoline` (paths along the isolines: domes "
+                                    "and caps) or `method: free` (a print direction per "
+                                    "triangle: also saddles, valleys, real terrain)"),
+}
+
+
 def _sidecar_value(key, value, kind, positive, src):
     if key == "fit" and isinstance(value, bool):
         value = "auto" if value else "off"      # YAML reads a bare off as false
@@ -130,10 +142,10 @@ def _sidecar_value(key, value, kind, positive, src):
             raise InvalidSidecar("%s must be a non-empty string" % key,
                                  code="sidecar.type", file=src, where=key,
                                  fix="write e.g. `profile: generic-0.5mm`")
-        if key == "fit" and value not in ("auto", "off"):
-            raise InvalidSidecar("fit must be auto or off", code="sidecar.value", file=src,
-                                 where=key, fix="write `fit: auto` (lower the relief to what "
-                                 "forms) or `fit: off` (plan the relief as given)")
+        if key in _CHOICES and value not in _CHOICES[key][0]:
+            raise InvalidSidecar("%s must be %s" % (key, " or ".join(_CHOICES[key][0])),
+                                 code="sidecar.value", file=src, where=key,
+                                 fix=_CHOICES[key][1])
         if key == "profile" and (not _PROFILE_NAME.fullmatch(value)
                                  or value.endswith((".yaml", ".yml"))):
             raise InvalidSidecar("profile must be the name of a profile this node has, "
