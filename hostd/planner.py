@@ -33,7 +33,7 @@ def output_names(name, color=False):
     return {k: "%s.%s" % (name, k) for k in kinds}
 
 
-def run(input_path, profile, outdir, progress=None, force_fit=False):
+def run(input_path, profile, outdir, progress=None, force_fit=False, method=None):
     """Plan ``input_path`` into ``outdir``.
 
     Returns the :class:`pipeline.plan.Plan`. On a :class:`PipelineError`,
@@ -43,7 +43,8 @@ def run(input_path, profile, outdir, progress=None, force_fit=False):
     outdir = Path(outdir)
     name = input_path.stem
     try:
-        plan = plan_file(input_path, profile, progress=progress, force_fit=force_fit)
+        plan = plan_file(input_path, profile, progress=progress, force_fit=force_fit,
+                         method=method)
         if progress:
             progress("write", "rendering pictures and writing outputs")
         t = time.perf_counter()

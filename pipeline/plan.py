@@ -175,7 +175,7 @@ def simulation_problems(sim):
                     "estimate, and NAME.preview.png for where the sheet departs"}]
 
 
-def plan_file(path, profile, progress=None, force_fit=False):
+def plan_file(path, profile, progress=None, force_fit=False, method=None):
     """Run the pipeline on one input file.
 
     Parameters
@@ -184,6 +184,7 @@ def plan_file(path, profile, progress=None, force_fit=False):
     profile : pipeline.profiles.profile.Profile
     progress : callable(stage, message), optional
     force_fit : fit the relief (free method) even where the sidecar asks for a height
+    method : the layout method, over the sidecar's ``method`` and the profile's
 
     Returns
     -------
@@ -209,8 +210,9 @@ def plan_file(path, profile, progress=None, force_fit=False):
     hf, _ = hfio.coarsen(hf, profile.validate.working_pixel_mm)
     timing["load"] = time.perf_counter() - t
 
-    if sidecar.method and sidecar.method != profile.flatten.method:
-        profile = replace(profile, flatten=replace(profile.flatten, method=sidecar.method))
+    method = method or sidecar.method
+    if method and method != profile.flatten.method:
+        profile = replace(profile, flatten=replace(profile.flatten, method=method))
         result.profile = profile
     opts = sidecar_settings(sidecar, profile)
     t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])

@@ -22,8 +22,9 @@ def add_parser(sub):
                         "else generic-0.5mm)")
     p.add_argument("-o", "--outdir", default=".", help="output folder (default: .)")
     p.add_argument("--method", choices=("isoline", "free"), default=None,
-                   help="layout method (default: the profile's flatten.method): isoline, the "
-                        "paper's, or free, a print direction per triangle")
+                   help="layout method (default: the sidecar's method, else the profile's "
+                        "flatten.method): isoline, the paper's, or free, a print direction "
+                        "per triangle")
     p.add_argument("--fit", action="store_true",
                    help="with the free method: fit the relief to what the material can form "
                         "(even where the sidecar asks for a height) and print the scales tried")
@@ -49,13 +50,9 @@ def _profile_name(args):
     return "generic-0.5mm"
 
 
-def _with_method(profile, args):
-    import dataclasses
-    method = "free" if args.fit and not args.method else args.method
-    if not method:
-        return profile
-    return dataclasses.replace(profile, flatten=dataclasses.replace(profile.flatten,
-                                                                    method=method))
+def _method(args):
+    """The layout method the command asks for (over the sidecar's and the profile's)."""
+    return "free" if args.fit and not args.method else args.method
 
 
 def _print_fit(fit):
@@ -86,9 +83,9 @@ def run(args):
               file=sys.stderr)
         return 2
     try:
-        profile = _with_method(load_profile(_profile_name(args)), args)
+        profile = load_profile(_profile_name(args))
         plan = planner.run(args.input, profile, args.outdir, progress=progress,
-                           force_fit=args.fit)
+                           force_fit=args.fit, method=_method(args))
     except PipelineError as exc:
         print("hostd plan: error %s: %s" % (exc.code, exc.text()), file=sys.stderr)
         if exc.code.startswith("profile."):
