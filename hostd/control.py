@@ -49,9 +49,7 @@ class ControlMixin:
                 if slot.job_id == job["id"]:
                     slot.printer.cancel()
             return "cancelling %s: the printer runs its cancel script" % job["id"]
-        proc = self.plans.pop(job["id"], None)
-        if proc:
-            proc.kill()
+        self.plans.cancel(job["id"])
         self._to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
                         state=J.CANCELLED)
         return "cancelled %s" % job["id"]

@@ -23,18 +23,17 @@ from pathlib import Path, PurePosixPath
 
 from hostd import jobs as J
 from hostd.feed import job_feed
-from hostd.reports import decision, report_in
 from hostd.control import ControlMixin
 from hostd.intake import IntakeMixin
-from hostd.farm import Farm, PlanCache, archive_done, archive_failed, file_hash, plan_key
+from hostd.farm import Farm, archive_done, archive_failed
 from hostd.lock import DaemonLock
 from hostd.notify import Notifier
-from hostd.planning import PlanProcess
+from hostd.plans import Plans
 from hostd.errors import HostdError
 from hostd.recovery import TWIN_FIX, RecoveryMixin
 from hostd.slot import Slot
 from hostd.watchdog import LoopWatch
-from hostd.watcher import Watcher, name_problem
+from hostd.watcher import Watcher
 
 log = logging.getLogger("hostd.daemon")
 TICK_S = 0.05
@@ -50,16 +49,14 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self.stop_event = threading.Event()
         self.slots = [Slot(p) for p in config.printers]
         self.farm = Farm(config.drop_dir, config.node_id, config.lease_s)
-        self.cache = PlanCache(Path(config.outbox_dir) / ".cache")
         self.watcher = Watcher(config.drop_dir, config.settle_s, config.poll_s)
-        self.plans = {}              # job id -> PlanProcess
+        self.plans = None            # hostd.plans.Plans, once the store is open
         self.lock = DaemonLock(config.lock_path)
         self.store = None
         self.web = None
         self.watch = None
         self._next_beat = 0.0
         self._next_reconnect = 0.0
-        self._profile_hashes = {}
         self._skipped = set()
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -75,6 +72,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             raise HostdError(self._twin_text(twin), code="config.node_id", file=c.source,
                              key="node_id", fix=TWIN_FIX)
         self.store, damaged, verdict = J.open_checked(c.db_path)
+        self.plans = Plans(c, self.store, self._may_plan, self._fail, self._full_ok)
         # Nothing prints before the loop starts: copies left by a crash can go.
         shutil.rmtree(c.spool_dir, ignore_errors=True)
         self.farm.setup()
@@ -129,8 +127,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                 self._control()
             if starting:
                 self._take_new(now)
-                self._reap_plans()
-                self._start_plans()
+                self.plans.reap()
+                self.plans.start()
             self._follow_prints()
             if starting:
                 self._dispatch()
@@ -146,12 +144,10 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         log.info("stopping")
         deadline = time.monotonic() + max(1.0, self.config.stop_timeout_s - 3.0)
         # With the job database full, the next start records what is left unrecorded here.
-        for job_id, proc in list(self.plans.items()):
-            proc.kill()
+        for job_id in self.plans.stop_all():
             with self._full_ok():
                 self.store.set_state(job_id, J.QUEUED, "daemon stopped while planning: will "
                                                        "plan again on the next start")
-        self.plans.clear()
         for slot in self.slots:
             if slot.job_id is not None and slot.link_job is not None:
                 try:
@@ -180,97 +176,11 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
 
     # -- planning --------------------------------------------------------------------------------
 
-    def _profile_hash(self, name):
-        if name not in self._profile_hashes:
-            from pipeline.profiles.profile import load_profile
-            from pipeline.profiles.dump import profile_hash
-            self._profile_hashes[name] = profile_hash(load_profile(name))
-        return self._profile_hashes[name]
-
-    def _start_plans(self):
-        from pipeline import __version__
-        from pipeline.errors import PipelineError
-        for job in self.store.next_in_order(J.QUEUED):
-            if len(self.plans) >= self.config.planning.workers:
-                return
-            if job["id"] in self.plans:   # started while its state could not be recorded
-                continue
-            if not any(self._eligible(s, job) for s in self.slots):
-                # Only the profiles this node's printers use are ever read: a job's
-                # profile comes from a sidecar anyone with the drop folder can write.
-                self._fail(job, self._no_printer_text(job["profile"], job["target"]),
-                           "job.no_printer")
-                continue
-            try:
-                digest = job["input_hash"] or file_hash(job["input_path"])
-                key = plan_key(digest, job["sidecar_path"], self._profile_hash(job["profile"]),
-                               __version__)
-            except PipelineError as exc:
-                self._fail(job, exc.text(), exc.code)
-                continue
-            except OSError as exc:
-                self._fail(job, "cannot read the input: %s" % exc, "job.unreadable")
-                continue
-            self.store.update(job["id"], input_hash=digest, plan_key=key)
-            job.update(input_hash=digest, plan_key=key)
-            if self.cache.get(key):
-                self._ready(job, "plan found in the cache")
-                continue
-            outdir = self.cache.staging(job["id"])
-            proc = PlanProcess(job["id"], job["input_path"], job["profile"], outdir,
-                               self.config.planning.time_limit_s, self.config.planning.memory_mb)
-            self.plans[job["id"]] = proc
-            self.store.set_state(job["id"], J.PLANNING, "planning in process %d" % proc.pid,
-                                 stage=proc.stage())
-
-    def _reap_plans(self):
-        now = time.monotonic()
-        for job_id, proc in list(self.plans.items()):
-            result = proc.poll()
-            if result is None:
-                if now >= getattr(proc, "stage_due", 0.0):
-                    proc.stage_due = now + PROGRESS_S
-                    with self._full_ok():   # a courtesy to the page, never a reason to stop
-                        self.store.update(job_id, stage=proc.stage())
-                continue
-            del self.plans[job_id]
-            job = self.store.get(job_id)
-            if result.get("ok"):
-                self.cache.store(proc.outdir, job["plan_key"], Path(job["input_path"]).stem)
-                self._ready(job, "planned in %.1f s" % (time.monotonic() - proc.started))
-            else:
-                # Whatever the plan wrote (an error file, or the pictures of a plan
-                # that is not printable) goes to the job's outbox for a person.
-                outbox = self._outbox(job, fresh=True)
-                for f in Path(proc.outdir).iterdir():
-                    if f.is_file() and f.name != "result.json":
-                        shutil.copy2(f, outbox / f.name)
-                shutil.rmtree(proc.outdir, ignore_errors=True)
-                text = result.get("text") or result.get("message") or "planning failed"
-                if result.get("fix") and "Fix:" not in text:
-                    text += ". Fix: " + result["fix"]
-                self.store.update(job_id, outbox=str(outbox))
-                self._fail(self.store.get(job_id), text, result.get("code"))
-
-    def _outbox(self, job, fresh=False):
-        """The job's outbox folder; ``fresh`` empties it first: each attempt's outputs
-        replace the last attempt's as a whole (a requeued job shows only what it made)."""
-        d = Path(self.config.outbox_dir) / job["id"]
-        if fresh and d.is_dir():
-            for f in d.iterdir():
-                if f.is_file() or f.is_symlink():
-                    f.unlink()
-        d.mkdir(parents=True, exist_ok=True)
-        return d
-
-    def _ready(self, job, message):
-        outbox = self._outbox(job, fresh=True)
-        self.cache.export(job["plan_key"], outbox, Path(job["name"]).stem if not
-                          name_problem(job["name"]) else Path(job["input_path"]).stem)
-        wait = decision(report_in(outbox))
-        self.store.set_state(job["id"], J.READY, message + (". " + wait if wait else ""),
-                             outbox=str(outbox), decision=wait)
-        log.info("job %s: %s ready (%s), outputs in %s", job["id"], job["name"], message, outbox)
+    def _may_plan(self, job):
+        """None when a printer here can print ``job``, else why not (for its failure)."""
+        if any(self._eligible(s, job) for s in self.slots):
+            return None
+        return self._no_printer_text(job["profile"], job["target"])
 
     def _gcode(self, job):
         if not job["outbox"]:

@@ -108,7 +108,7 @@ def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
 
 @pytest.mark.slow
 def test_progress_is_written_every_few_seconds_not_every_tick(tmp_path):
-    d = in_process_daemon(tmp_path, time_scale=0.0075)
+    d = in_process_daemon(tmp_path, time_scale=0.012)   # a print of 5-7 s
     writes = []
     update = d.store.update
 

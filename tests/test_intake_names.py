@@ -64,15 +64,15 @@ def test_one_files_failure_at_intake_leaves_the_others_taken(tmp_path, monkeypat
 
 
 def test_junk_is_refused_as_it_is_taken_without_a_plan(tmp_path, monkeypatch):
-    from hostd import daemon as daemon_mod
     from hostd import jobs as J
+    from hostd import plans as plans_mod
     started = []
-    real = daemon_mod.PlanProcess
+    real = plans_mod.PlanProcess
 
     def counting(job_id, *args, **kw):
         started.append(job_id)
         return real(job_id, *args, **kw)
-    monkeypatch.setattr(daemon_mod, "PlanProcess", counting)
+    monkeypatch.setattr(plans_mod, "PlanProcess", counting)
     d = in_process_daemon(tmp_path, 0)
     try:
         drop = d.config.drop_dir

@@ -5,7 +5,7 @@ import argparse
 import time
 
 from daemon_helpers import in_process_daemon, write_dome
-from hostd import daemon as daemon_mod
+from hostd import plans as plans_mod
 from hostd import jobs as J
 from hostd.commands import jobs as cli
 from hostd.web.app import create_app
@@ -14,7 +14,7 @@ STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath", "write"
 
 
 def test_the_plans_stage_is_shown_while_it_runs(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(daemon_mod, "PROGRESS_S", 0.1)
+    monkeypatch.setattr(plans_mod, "STAGE_S", 0.1)
     d = in_process_daemon(tmp_path, 0)
     try:
         write_dome(d.config.drop_dir / "dome.npy", diameter_mm=60, height_mm=8)
