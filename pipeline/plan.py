@@ -85,13 +85,14 @@ def fold_area_fraction(xy, faces):
     return float(-area[area < 0].sum() / total) if total > 0 else 0.0
 
 
-def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
+def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml", smooth_mm=1.0):
     """What is wrong with a flat layout, as report problems (code, message, fix).
 
     The fixes are the ones that helped on the real terrain of the tests
     (``../shared/data/terrain``): there smoothing (``smooth_mm`` 3 mm instead of 1)
     turned folded layouts into printable ones, while a lower height or more flatten
-    iterations made them fold more; so only smoothing is offered for folds.
+    iterations made them fold more; so smoothing is offered for folds, from where the
+    file stands (twice its present ``smooth_mm``), and the free method, which folds less.
     """
     problems = []
     if flat.overlapping:
@@ -102,9 +103,10 @@ def layout_problems(flat, fold_fraction, lim, sidecar_name="NAME.yaml"):
                        % (flat.flipped_triangles, flat.boundary_intersections,
                           100 * fold_fraction),
             "fix": "smooth away features narrower than the sheet can form: raise smooth_mm in "
-                   "the sidecar (%s), e.g. `smooth_mm: 3` (real terrain that folds at "
-                   "the default 1 mm plans at 3 mm); a lower height or more flatten "
-                   "iterations do not help" % sidecar_name})
+                   "the sidecar (%s) from %g, e.g. `smooth_mm: %g`, or plan it with the free "
+                   "layout method (`method: free` there), which forms saddles and valleys; a "
+                   "lower height or more flatten iterations do not help"
+                   % (sidecar_name, smooth_mm, max(3.0, 2.0 * smooth_mm))})
     if flat.invalid_edge_fraction > INVALID_WARN:
         sigma = np.asarray(flat.sigma)
         stretch = float(np.mean(sigma < lim.s_min - SIGMA_TOL))
@@ -228,7 +230,7 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
         _free_sheet(result, hf, profile, stage, timing)
         _refuse_too_high(result, hf, profile, sidecar, opts, timing)
     else:
-        _isoline_sheet(result, hf, profile, path, stage, timing)
+        _isoline_sheet(result, hf, profile, path, stage, timing, opts)
     timing["total"] = time.perf_counter() - t_all
     result.report = _report(path, profile, result, vrep, srep, timing)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
@@ -273,7 +275,7 @@ def other_method_problems(other, name):
                     % name}]
 
 
-def _isoline_sheet(result, hf, profile, path, stage, timing):
+def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
     """The paper's method: isoline mesh, isoline layout, paths along the isolines."""
     mp = profile.mesh
     t = stage("mesh", "isolines every %.3g mm, gradient lines every %.3g mm"
@@ -300,7 +302,7 @@ def _isoline_sheet(result, hf, profile, path, stage, timing):
     # only make paths overlap in a spot.
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
     result.problems += layout_problems(flat, result.fold_fraction, lim,
-                                       Path(path).stem + ".yaml")
+                                       Path(path).stem + ".yaml", opts["smooth_mm"])
 
     t = stage("simulate", "forward simulation of the flat sheet")
     # The printed sheet can only shrink within the material's range (the G-code clamps

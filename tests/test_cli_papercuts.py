@@ -65,3 +65,16 @@ def test_waitress_queue_depth_warnings_stay_out_of_the_log():
     logs.setup(stream=open("/dev/null", "w"))
     assert not logging.getLogger("waitress.queue").isEnabledFor(logging.WARNING)
     assert logging.getLogger("waitress.queue").isEnabledFor(logging.ERROR)
+
+
+def test_a_fault_of_the_mesher_is_not_called_invalid_input(tmp_path, monkeypatch, capsys):
+    from pipeline.errors import MeshingError
+    from hostd import planner
+
+    def broken(*args, **kw):
+        raise MeshingError("2 edges shared by more than two triangles", code="mesh.overlap")
+    monkeypatch.setattr(planner, "run", broken)
+    (tmp_path / "x.npy").write_bytes(b"\x93NUMPY")
+    assert main(["plan", str(tmp_path / "x.npy"), "-q", "-o", str(tmp_path)]) == 5
+    err = capsys.readouterr().err
+    assert "mesh.overlap" in err and "fault of hostd" in err and "--method free" in err

@@ -180,6 +180,10 @@ def test_layout_problems_name_the_fix_that_helps_and_split_the_invalid_edges():
     assert "20.0 % would have to stretch, 10.0 % shrink more" in invalid["message"]
     assert [p["code"] for p in layout_problems(flat, FOLD_LIMIT / 2, lim)][0] == \
         "flatten.small_fold"
+    # The advice starts from where the file stands, never below what it already has.
+    fold5 = layout_problems(flat, 2 * FOLD_LIMIT, lim, "tile.yaml", smooth_mm=5.0)[0]
+    assert "from 5, e.g. `smooth_mm: 10`" in fold5["fix"] and "tile.yaml" in fold5["fix"]
+    assert "method: free" in fold5["fix"]
     flat.overlapping, flat.invalid_edge_fraction = False, 0.05
     assert layout_problems(flat, 0.0, lim) == []
 

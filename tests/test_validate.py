@@ -145,6 +145,7 @@ def test_crater_deeper_than_max_fill_is_rejected_with_location():
         validate(HeightField(z, PX, source="crater.npy"), max_fill_mm=2.0)
     err = e.value
     assert err.code == "validate.depression"
+    assert "sidecar crater.yaml" in err.fix and "`max_fill_mm: 6.1`" in err.fix
     dep = err.details["depressions"][0]
     assert dep["depth_mm"] == pytest.approx(6.0, abs=1e-9)
     assert dep["x_mm"] == pytest.approx((80 - 12) * PX, abs=PX)

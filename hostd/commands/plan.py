@@ -4,7 +4,7 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline.errors import PipelineError
+from pipeline.errors import MeshingError, PipelineError
 from pipeline.profiles.profile import load_profile
 
 
@@ -90,6 +90,12 @@ def run(args):
         print("hostd plan: error %s: %s" % (exc.code, exc.text()), file=sys.stderr)
         if exc.code.startswith("profile."):
             return 3
+        if isinstance(exc, MeshingError):
+            # The isoline mesher failing on a valid field is hostd's fault, not the file's.
+            print("hostd plan: this is a fault of hostd's isoline mesher, not of the file: "
+                  "plan it with --method free (no isoline mesh), and please report it",
+                  file=sys.stderr)
+            return 5
         print("hostd plan: wrote %s" % (Path(args.outdir) / (name + ".error.json")),
               file=sys.stderr)
         return 2

@@ -153,11 +153,24 @@ def _stl_binary_size(path):
     return 84 + 50 * n
 
 
+# A file declaring more than this many times the limit is not a big height field but a
+# decompression bomb or a broken export: raising the limit is no fix for it.
+_ABSURD = 4
+
+
 def _too_many(path, pixels, max_pixels, what="image"):
     return _fail("heightfield.too_many_pixels",
                  "%s declares %s pixels, more than the limit of %s" % (what, pixels, max_pixels),
-                 str(path), "downsample it, or raise validate.max_pixels in the profile",
+                 str(path), _too_many_fix(pixels, max_pixels),
                  pixels=pixels, max_pixels=max_pixels)
+
+
+def _too_many_fix(pixels, max_pixels):
+    if pixels is None or pixels > _ABSURD * max_pixels:
+        return ("a sheet cannot show that much detail: export it again at most %d pixels "
+                "(e.g. %d x %d); a file declaring far more than it holds is refused unread"
+                % (max_pixels, int(max_pixels ** 0.5), int(max_pixels ** 0.5)))
+    return "downsample it, or raise validate.max_pixels in the profile"
 
 
 def _read_image(path, max_pixels):
@@ -170,7 +183,7 @@ def _read_image(path, max_pixels):
             im = Image.open(path)
     except Image.DecompressionBombError as exc:
         raise _fail("heightfield.too_many_pixels", "image header declares too many pixels (%s)"
-                    % exc, name, "downsample it, or raise validate.max_pixels in the profile",
+                    % exc, name, _too_many_fix(None, max_pixels),
                     max_pixels=max_pixels) from None
     except Exception as exc:  # Pillow raises many types for broken headers
         raise _fail("heightfield.truncated", "image header cannot be read (%s)" % exc, name,

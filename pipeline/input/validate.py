@@ -18,6 +18,8 @@ descending path to the boundary. ``pipeline.input.simplify`` reuses the same
 machinery on the negated field to cut low peaks.
 """
 
+from pathlib import Path
+
 import numpy as np
 from scipy import ndimage
 from scipy.sparse import csr_matrix
@@ -334,6 +336,11 @@ def check_fits_bed(extent_mm, bed_mm, allow_rotation=True, file=None, what="the 
     return {"rotated": bool(turned < straight), "margin_mm": float(-over)}
 
 
+def _sidecar_name(source):
+    """The sidecar a person would edit for input ``source``: ``NAME.yaml`` beside it."""
+    return Path(source).stem + ".yaml" if source else "NAME.yaml"
+
+
 def validate(hf, max_fill_mm, bed_mm=None, eps_mm=EPS_MM):
     """Check disk topology, fill shallow depressions, refuse deep ones, check the bed.
 
@@ -373,8 +380,9 @@ def validate(hf, max_fill_mm, bed_mm=None, eps_mm=EPS_MM):
             "sheet pops up one way and cannot form a bowl or crater"
             % (len(deep), "" if len(deep) == 1 else "s", max_fill_mm, deep[0, 2]),
             code="validate.depression", file=hf.source, where=listing,
-            fix="raise max_fill_mm (in the sidecar NAME.yaml or the profile's validate section) "
-                "to fill it, or edit the data",
+            fix="raise max_fill_mm (in the sidecar %s or the profile's validate section) to "
+                "fill it, e.g. `max_fill_mm: %.1f`, or edit the data" % (
+                    _sidecar_name(hf.source), np.ceil(deep[0, 2] * 10 + 1) / 10),
             details={"depressions": [{"x_mm": float(p[0]), "y_mm": float(p[1]),
                                       "depth_mm": float(d), "spill_mm": float(s)}
                                      for p, d, s in zip(xy[:50], deep[:50, 2], deep[:50, 1])],
