@@ -21,8 +21,10 @@ from hostd.watcher import INPUT_SUFFIXES, ignored, name_problem
 
 bp = Blueprint("api", __name__)
 
-NO_TOKEN = ("actions are disabled on this node: no token is configured. Set `web: {token: "
-            "SOME-LONG-SECRET}` in hostd.yaml (see docs/hostd.example.yaml) and restart hostd")
+NO_TOKEN = ("actions are off on this node: no token is configured. Run `hostd token` in the "
+            "folder you start hostd from (it writes ./hostd.yaml), then start it with `hostd run "
+            "-c hostd.yaml`; or set `web: {token: SOME-LONG-SECRET}` in the hostd.yaml it runs "
+            "with and restart it")
 JOB_ACTIONS = ("pause", "resume", "cancel", "requeue", "approve")
 
 

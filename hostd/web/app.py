@@ -66,7 +66,8 @@ def create_app(config, store=None, daemon=None):
     app.register_blueprint(metrics.bp)
     app.jinja_env.filters.update(duration=_duration, when=_when, chart=_chart_points,
                                   sentence=problem_sentence)
-    app.context_processor(lambda: {"node_id": config.node_id})
+    app.context_processor(lambda: {"node_id": config.node_id,
+                                   "actions_enabled": bool(config.web.token)})
     app.after_request(security_headers)
     add_error_pages(app)
     pages.add_pages(app, DESTRUCTIVE)
