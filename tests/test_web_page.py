@@ -25,6 +25,10 @@ def test_page_plain_html(tmp_path):
     assert "layer <span data-field=\"layer\">2</span> of <span data-field=\"layers\">2</span>" \
         in html
     assert "/api/jobs/%s/files/dome.toolpath.png" % n.printing in html
+    # Thumbnails are labelled and open full size.
+    assert '<a href="/api/jobs/%s/files/dome.toolpath.png"' % n.printing in html
+    assert "<figcaption>tool paths</figcaption>" in html
+    assert "<figcaption>shrink of the flat sheet</figcaption>" in html
     for name in ("a.png", "b.png"):
         assert name in html
     assert TOKEN not in html

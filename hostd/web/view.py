@@ -311,8 +311,8 @@ class NodeView:
         info["files"] = files
         stem = next((f[:-len(".toolpath.png")] for f in files if f.endswith(".toolpath.png")),
                     None)
-        info["images"] = {kind: "%s.%s.png" % (stem, kind) for kind in ("toolpath", "stress",
-                                                                       "preview", "texture")
+        info["images"] = {kind: "%s.%s.png" % (stem, kind)
+                          for kind in ("input", "preview", "toolpath", "stress", "texture")
                           if stem and "%s.%s.png" % (stem, kind) in files}
         info["elapsed_s"] = info["eta_s"] = info["layer"] = info["layers"] = None
         if job["state"] == J.PRINTING:
