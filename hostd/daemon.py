@@ -22,6 +22,7 @@ import time
 from pathlib import Path, PurePosixPath
 
 from hostd import jobs as J
+from hostd import runtime
 from hostd.feed import job_feed
 from hostd.control import ControlMixin
 from hostd.intake import IntakeMixin
@@ -103,6 +104,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
     def run(self):
         """Set up, loop until asked to stop, shut down; returns the exit status."""
         self.setup()
+        runtime.publish(self.config, Path.cwd())   # terminal commands find it from anywhere
         try:
             while not self.stop_event.is_set():
                 try:
@@ -113,6 +115,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
                     self.stop_event.wait(1.0)
                 self.stop_event.wait(TICK_S)
         finally:
+            runtime.withdraw()
             self.shutdown()
         return 0
 

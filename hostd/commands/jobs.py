@@ -47,16 +47,22 @@ def _states():
 
 
 def _open(args, need_daemon):
+    """The daemon's configuration, job store and pid: the one ``--config`` names, else the
+    running daemon's (from its runtime file, whatever folder it was started in), else the
+    embedded default's in this folder."""
     from hostd.config import load_config
     from hostd.lock import running_pid
     from hostd.jobs import JobStore
-    config = load_config(args.config)
+    from hostd.runtime import running_config, runtime_file
+    config = load_config(args.config) if args.config else (running_config() or load_config())
     pid = running_pid(config.lock_path)
     if need_daemon and not pid:
         raise HostdError("no hostd daemon runs with state folder %s" % config.state_dir,
                          code="control.no_daemon",
-                         fix="start it with `hostd run%s`" % (" --config " + args.config
-                                                             if args.config else ""))
+                         fix="start it with `hostd run%s`, or point at its configuration with "
+                             "--config (a running daemon says where it is in %s)"
+                             % (" --config " + args.config if args.config else "",
+                                runtime_file()))
     return config, JobStore(config.db_path, create=False), pid
 
 
