@@ -184,15 +184,29 @@ class Pings:
     status = stopping = ready
 
 
-def in_process_daemon(tmp_path, time_scale, **extra):
-    """A daemon in this process with one simulated printer (no web server), set up."""
-    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000,
-                 "port": "sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale}]
+def in_process_daemon(tmp_path, time_scale, sim="", profile="generic-0.5mm", baud=2000000,
+                      token=None, **extra):
+    """A daemon in this process with one simulated printer ``p1`` (no web server), set up.
+
+    ``sim``: more ``sim://`` options (``"fault_reset_line=200"``); ``baud``: what the host
+    believes the printer's link runs at."""
+    port = "sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale + ("&" + sim if sim else "")
+    printers = [{"name": "p1", "profile": profile, "baud": baud, "port": port}]
     config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2, **extra))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
+    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None,
+                                                                 token=token))
     d = daemon_mod.Daemon(config, notifier=Pings())
     d.setup()
     return d
+
+
+def tick_until(d, predicate, timeout=60, what="condition"):
+    """Run the daemon's loop until ``predicate()`` holds; fails the test after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out waiting for " + what
+        d.tick()
+        time.sleep(0.02)
 
 
 @contextlib.contextmanager

@@ -8,11 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from daemon_helpers import Pings, write_config, write_dome
+from daemon_helpers import in_process_daemon, write_dome
 from gcode_parser import parse, point_polyline_distance
-from hostd import daemon as daemon_mod
 from hostd import jobs as J
-from hostd.config import load_config
 from hostd.feed import job_feed
 from hostd.planner import link_problems
 from hostd.printer.protocol import frame
@@ -95,20 +93,10 @@ def test_a_file_the_link_cannot_carry_is_reported_with_what_to_change():
     assert fast["feed_percent"] == 100 and link_problems(fast, PROFILE) == []
 
 
-def _daemon(tmp_path, baud):
-    # The simulated wire runs fast whatever baud the host believes the printer has.
-    port = "sim://?time_scale=0&advanced_ok=1&boot_s=0&baud=2000000"
-    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": baud, "port": port}]
-    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
-    d = daemon_mod.Daemon(config, notifier=Pings())
-    d.setup()
-    return d
-
-
 @pytest.mark.parametrize("baud", [2400, 2000000])
 def test_a_job_the_link_cannot_carry_prints_slower_and_says_so(tmp_path, baud):
-    d = _daemon(tmp_path, baud)
+    # The simulated wire runs fast whatever baud the host believes the printer has.
+    d = in_process_daemon(tmp_path, 0, sim="baud=2000000", baud=baud)
     try:
         write_dome(d.config.drop_dir / "dome.npy")
         deadline = time.monotonic() + 120

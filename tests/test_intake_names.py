@@ -2,21 +2,13 @@
 and one file's failure at intake, never block the other files of a scan or the page."""
 
 import os
-import time
 
-from daemon_helpers import in_process_daemon, write_dome
+from daemon_helpers import in_process_daemon, tick_until, write_dome
 from hostd.web.app import create_app
 
 
 def _bytes_path(folder, name):
     return os.fsencode(str(folder)) + b"/" + name
-
-
-def _ticks(d, until, timeout=30):
-    deadline = time.monotonic() + timeout
-    while not until() and time.monotonic() < deadline:
-        d.tick()
-        time.sleep(0.05)
 
 
 def test_a_name_that_is_not_utf8_is_taken_under_a_safe_name(tmp_path):
@@ -32,7 +24,7 @@ def test_a_name_that_is_not_utf8_is_taken_under_a_safe_name(tmp_path):
         with open(_bytes_path(drop / "elsewhere", b"bad\xff\xfename.npy"), "wb") as f:
             f.write(data)
         client = create_app(d.config, d.store, d).test_client()
-        _ticks(d, lambda: len(d.store.list()) == 2)
+        tick_until(d, lambda: len(d.store.list()) == 2)
         names = sorted(j["name"] for j in d.store.list())
         assert names == ["good.npy", "top_bad.npy"]
         assert [j["rel_path"] for j in d.store.list() if j["name"] == "top_bad.npy"] \
@@ -57,7 +49,7 @@ def test_one_files_failure_at_intake_leaves_the_others_taken(tmp_path, monkeypat
                 raise RuntimeError("a fault of this file alone")
             return real(cand)
         monkeypatch.setattr(d, "_intake", faulty)
-        _ticks(d, lambda: len(d.store.list()) == 1)
+        tick_until(d, lambda: len(d.store.list()) == 1)
         assert [j["name"] for j in d.store.list()] == ["b.npy"]
     finally:
         d.shutdown()
@@ -79,7 +71,7 @@ def test_junk_is_refused_as_it_is_taken_without_a_plan(tmp_path, monkeypatch):
         for i in range(30):
             (drop / ("junk-%02d.npy" % i)).write_bytes(b"GIF89a not an array %d" % i)
         write_dome(drop / "good.npy")
-        _ticks(d, lambda: len(d.store.list()) == 31 and all(
+        tick_until(d, lambda: len(d.store.list()) == 31 and all(
             j["state"] != J.QUEUED for j in d.store.list()))
         jobs = {j["name"]: j for j in d.store.list()}
         junk = [j for n, j in jobs.items() if n.startswith("junk")]

@@ -1,18 +1,8 @@
 """Each attempt's outputs replace the last attempt's as a whole: after a requeue the job's
 outbox holds exactly what the new attempt made, and a failed plan's files are listed."""
 
-import time
-
-from daemon_helpers import in_process_daemon, write_dome
+from daemon_helpers import in_process_daemon, tick_until, write_dome
 from hostd import jobs as J
-
-
-def _ticks(d, until, timeout=120, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not until():
-        assert time.monotonic() < deadline, "timed out waiting for " + what
-        d.tick()
-        time.sleep(0.05)
 
 
 def test_a_requeued_job_shows_only_the_new_attempts_files(tmp_path):
@@ -22,7 +12,7 @@ def test_a_requeued_job_shows_only_the_new_attempts_files(tmp_path):
         # Far larger than the bed: the plan fails with an error file in the outbox.
         path.with_name("dome.yaml").write_text("size_mm: 5000\n")
         job = lambda: d.store.list()[0]                      # noqa: E731
-        _ticks(d, lambda: d.store.list() and job()["state"] == J.FAILED, what="the failure")
+        tick_until(d, lambda: d.store.list() and job()["state"] == J.FAILED, what="the failure")
         first = job()
         assert first["outbox"], "a failed plan's outputs are the job's"
         from pathlib import Path
@@ -30,7 +20,7 @@ def test_a_requeued_job_shows_only_the_new_attempts_files(tmp_path):
         assert (outbox / "dome.error.json").exists()
         (Path(d.config.failed_dir) / "dome.yaml").write_text("size_mm: 20\n")
         assert d._do_requeue(first["id"]).startswith("requeued")
-        _ticks(d, lambda: job()["state"] in (J.READY, J.PRINTING, J.DONE), what="the new plan")
+        tick_until(d, lambda: job()["state"] in (J.READY, J.PRINTING, J.DONE), what="the new plan")
         names = sorted(f.name for f in outbox.iterdir())
         assert "dome.error.json" not in names and "dome.gcode" in names
     finally:

@@ -1,16 +1,13 @@
 """A plan prints by itself only within its profile's printable limits; outside them it is
 held at ready until a person approves it ("Print anyway", ``hostd approve``)."""
 
-import dataclasses
 import time
 from pathlib import Path
 
 import pytest
 
-from daemon_helpers import Pings, write_config, write_dome
-from hostd import daemon as daemon_mod
+from daemon_helpers import in_process_daemon, tick_until, write_dome
 from hostd import jobs as J
-from hostd.config import load_config
 from hostd.web.app import create_app, problem_sentence
 from pipeline import printable
 from pipeline.plan import plan_file
@@ -70,33 +67,14 @@ def test_a_plan_outside_the_limits_is_planned_but_not_printable(tmp_path, monkey
     assert "isoline method" in preview_title(loose)
 
 
-def _daemon(tmp_path):
-    printers = [{"name": "p1", "profile": "strict-0.5mm", "baud": 2000000,
-                 "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0"}]
-    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None,
-                                                                 token="secret"))
-    d = daemon_mod.Daemon(config, notifier=Pings())
-    d.setup()
-    return d
-
-
-def _tick_until(d, predicate, timeout=120, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out waiting for " + what
-        d.tick()
-        time.sleep(0.02)
-
-
 def test_the_daemon_holds_it_at_ready_until_a_person_approves(tmp_path, monkeypatch):
     _strict_profile(tmp_path / "profiles")
     monkeypatch.setenv("HOSTD_PROFILES", str(tmp_path / "profiles"))
-    d = _daemon(tmp_path)
+    d = in_process_daemon(tmp_path, 0, profile="strict-0.5mm", token="secret")
     try:
         write_dome(d.config.drop_dir / "dome.npy")
         job = lambda: (d.store.list() or [{}])[0]           # noqa: E731
-        _tick_until(d, lambda: job().get("state") == J.READY, what="the plan")
+        tick_until(d, lambda: job().get("state") == J.READY, what="the plan")
         t = time.monotonic()
         while time.monotonic() - t < 2.0:                   # an idle printer, yet it waits
             d.tick()
@@ -109,7 +87,7 @@ def test_the_daemon_holds_it_at_ready_until_a_person_approves(tmp_path, monkeypa
         assert "Print anyway" in client.get("/").get_data(as_text=True)
         assert d._do_approve(job()["id"]).startswith("approved")
         assert job()["decision"] is None
-        _tick_until(d, lambda: job()["state"] in (J.PRINTING, J.DONE), what="the print")
+        tick_until(d, lambda: job()["state"] in (J.PRINTING, J.DONE), what="the print")
         with pytest.raises(Exception, match="does not wait"):
             d._do_approve(job()["id"])
     finally:

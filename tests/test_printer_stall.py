@@ -5,47 +5,30 @@ until a restart before)."""
 import dataclasses
 import time
 
-from daemon_helpers import Pings, write_config, write_dome
-from hostd import daemon as daemon_mod
+from daemon_helpers import in_process_daemon, tick_until, write_dome
 from hostd import jobs as J
 from hostd import slot as slot_mod
-from hostd.config import load_config
 from hostd.web.view import NodeView
 
 STALL_S = 3.0
 
 
-def _daemon(tmp_path, monkeypatch):
+def _quick_give_up(monkeypatch):
     real = slot_mod.link_settings
 
     def quick(printer_config):   # give up on a silent printer in about a second
         return dataclasses.replace(real(printer_config), ok_timeout_s=0.5, max_timeouts=1)
     monkeypatch.setattr(slot_mod, "link_settings", quick)
-    port = ("sim://?time_scale=0&advanced_ok=1&boot_s=0&fault_stall_line=150&stall_s=%g"
-            % STALL_S)
-    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000, "port": port}]
-    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
-    d = daemon_mod.Daemon(config, notifier=Pings())
-    d.setup()
-    return d
-
-
-def _ticks(d, until, timeout=60, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not until():
-        assert time.monotonic() < deadline, "timed out waiting for " + what
-        d.tick()
-        time.sleep(0.02)
 
 
 def test_a_printer_that_stalled_and_came_back_reconnects_when_resumed(tmp_path, monkeypatch):
-    d = _daemon(tmp_path, monkeypatch)
+    _quick_give_up(monkeypatch)
+    d = in_process_daemon(tmp_path, 0, sim="fault_stall_line=150&stall_s=%g" % STALL_S)
     try:
         write_dome(d.config.drop_dir / "dome.npy")
         slot = d.slots[0]
         job = lambda: d.store.list()[0]                      # noqa: E731
-        _ticks(d, lambda: d.store.list() and job()["state"] == J.FAILED, what="the failure")
+        tick_until(d, lambda: d.store.list() and job()["state"] == J.FAILED, what="the failure")
         assert "not responding" in job()["error"]
         assert slot.state == "error" and slot.paused
         t = time.monotonic()
@@ -57,22 +40,17 @@ def test_a_printer_that_stalled_and_came_back_reconnects_when_resumed(tmp_path, 
         assert card["state"] == "error" and "not responding" in card["error"]
         assert card["temperatures_stale"]
         assert d._do_resume("p1").endswith("reconnecting")
-        _ticks(d, lambda: slot.state == "idle", what="the printer to reconnect")
+        tick_until(d, lambda: slot.state == "idle", what="the printer to reconnect")
         assert slot.last_error is None
     finally:
         d.shutdown()
 
 
 def test_after_a_thermal_runaway_the_card_says_why(tmp_path):
-    port = "sim://?time_scale=0&advanced_ok=1&boot_s=0&fault_runaway_line=150"
-    printers = [{"name": "p1", "profile": "generic-0.5mm", "baud": 2000000, "port": port}]
-    config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2))
-    config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None))
-    d = daemon_mod.Daemon(config, notifier=Pings())
-    d.setup()
+    d = in_process_daemon(tmp_path, 0, sim="fault_runaway_line=150")
     try:
         write_dome(d.config.drop_dir / "dome.npy")
-        _ticks(d, lambda: d.store.list() and d.store.list()[0]["state"] == J.FAILED,
+        tick_until(d, lambda: d.store.list() and d.store.list()[0]["state"] == J.FAILED,
                what="the failure")
         card = NodeView(d.config, d, db_path=d.config.db_path).printers()[0]
         assert card["state"] == "error" and "Thermal Runaway" in card["error"]

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from daemon_helpers import in_process_daemon, write_dome
+from daemon_helpers import in_process_daemon, tick_until, write_dome
 from hostd import jobs as J
 from pipeline.errors import InvalidProfile, InvalidSidecar
 from pipeline.input.sidecar import load_sidecar
@@ -45,14 +45,6 @@ def test_a_profile_error_never_quotes_the_file(tmp_path, text):
         assert secret not in shown
 
 
-def _run_until(d, predicate, timeout=30):
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        d.tick()
-        time.sleep(0.02)
-
-
 def _requeue(d, job_id):
     cli = J.JobStore(d.config.db_path)
     req = cli.request("requeue", job_id)
@@ -72,11 +64,11 @@ def test_requeue_of_a_sidecar_naming_a_key_file_discloses_nothing(tmp_path):
         key.write_text(PEM)
         inp = write_dome(d.config.drop_dir / "x.npy")
         inp.with_name("x.yaml").write_text("pixel_mm: 1.0\nprofile: %s\n" % key)
-        _run_until(d, lambda: [j for j in d.store.list() if j["state"] == J.FAILED])
+        tick_until(d, lambda: [j for j in d.store.list() if j["state"] == J.FAILED])
         [job] = d.store.list()
         assert job["error_code"] == "sidecar.profile"
         _requeue(d, job["id"])
-        _run_until(d, lambda: d.store.get(job["id"])["state"] == J.FAILED)
+        tick_until(d, lambda: d.store.get(job["id"])["state"] == J.FAILED)
         job = d.store.get(job["id"])
         told = (d.config.failed_dir / "x.error.txt").read_text()
         events = " ".join(e["message"] for e in d.store.events(job["id"]))
@@ -93,7 +85,7 @@ def test_requeue_reads_the_sidecar_again(tmp_path):
     try:
         inp = write_dome(d.config.drop_dir / "y.npy")
         inp.with_name("y.yaml").write_text("pixel_mm: 1.0\nprofile: prusa-mk3s-0.4mm\n")
-        _run_until(d, lambda: [j for j in d.store.list() if j["state"] == J.FAILED])
+        tick_until(d, lambda: [j for j in d.store.list() if j["state"] == J.FAILED])
         [job] = d.store.list()
         assert job["error_code"] == "job.no_printer"
         (d.config.failed_dir / "y.yaml").write_text("pixel_mm: 1.0\nprofile: generic-0.5mm\n"
@@ -101,7 +93,7 @@ def test_requeue_reads_the_sidecar_again(tmp_path):
         _requeue(d, job["id"])
         job = d.store.get(job["id"])
         assert job["profile"] == "generic-0.5mm" and job["copies"] == 2
-        _run_until(d, lambda: d.store.get(job["id"])["state"] not in (J.QUEUED, J.PLANNING),
+        tick_until(d, lambda: d.store.get(job["id"])["state"] not in (J.QUEUED, J.PLANNING),
                    timeout=120)
         assert d.store.get(job["id"])["state"] != J.FAILED, d.store.get(job["id"])["error"]
     finally:
