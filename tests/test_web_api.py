@@ -396,24 +396,18 @@ def test_upload_size_limit(node):
 
 
 def test_slow_readers_of_a_large_file_leave_the_page_up(node):
-    import socket
-
     from hostd.web import server
-    from web_helpers import get_json
+    from web_helpers import get_json, open_clients
     big = node.config.outbox_dir / node.printing / "big.gcode"
     big.write_bytes(b"G1 X1 Y1 E0.1\n" * (3 << 20))           # 42 MB: more than waitress
                                                                  # buffers by default
     config = dataclasses.replace(node.config, web=dataclasses.replace(node.config.web, port=0))
     web = server.start(config, store=node.store)
-    port = int(web.url.rsplit(":", 1)[1][:-1])
     readers = []
     try:
-        for _ in range(server.THREADS + 2):                     # each reads nothing
-            s = socket.create_connection(("127.0.0.1", port), timeout=5)
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-            s.sendall(b"GET /api/jobs/%s/files/big.gcode HTTP/1.1\r\nHost: x\r\n\r\n"
-                      % node.printing.encode())
-            readers.append(s)
+        readers = open_clients(web, b"GET /api/jobs/%s/files/big.gcode HTTP/1.1\r\nHost: x"
+                                    b"\r\n\r\n" % node.printing.encode(),
+                               server.THREADS + 2, rcvbuf=4096)      # each reads nothing
         # The threads hand the files to the server's buffer and are free again; before,
         # each waited for its reader, and the page never answered while they held.
         status, body = get_json(web.url + "healthz", timeout=60)

@@ -10,7 +10,7 @@ from hostd.outputs import atomic_write
 from hostd.web.app import create_app
 from hostd.web import server
 from test_web_api import TOKEN, Node, make_config
-from web_helpers import get_json
+from web_helpers import get_json, open_clients
 
 
 def test_page_plain_html(tmp_path):
@@ -66,21 +66,21 @@ def test_farm_view_marks_stale_nodes(tmp_path):
     n.store.close()
 
 
-def test_the_page_answers_while_many_clients_trickle_headers(tmp_path):
-    import socket
+def _served(tmp_path):
     from dataclasses import replace
     config = make_config(tmp_path)
     config = replace(config, web=replace(config.web, port=0))
     for d in ("drop_dir", "state_dir", "outbox_dir"):
         getattr(config, d).mkdir(parents=True, exist_ok=True)
-    web = server.start(config)
-    host, port = "127.0.0.1", int(web.url.rsplit(":", 1)[1][:-1])
+    return server.start(config)
+
+
+def test_the_page_answers_while_many_clients_trickle_headers(tmp_path):
+    web = _served(tmp_path)
     slow = []
     try:
-        for _ in range(150):              # more than waitress's default connection limit
-            s = socket.create_connection((host, port), timeout=5)
-            s.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nX-Slow: ")
-            slow.append(s)
+        # More than waitress's default connection limit, each sending its headers slowly.
+        slow = open_clients(web, b"GET / HTTP/1.1\r\nHost: x\r\nX-Slow: ", 150)
         status, body = get_json(web.url + "healthz", timeout=5)
         assert status == 200 and body["ok"] is True
     finally:
@@ -91,11 +91,8 @@ def test_the_page_answers_while_many_clients_trickle_headers(tmp_path):
 
 def test_waitress_serves_and_stops(tmp_path):
     from dataclasses import replace
+    web = _served(tmp_path)
     config = make_config(tmp_path)
-    config = replace(config, web=replace(config.web, port=0))
-    for d in ("drop_dir", "state_dir", "outbox_dir"):
-        getattr(config, d).mkdir(parents=True, exist_ok=True)
-    web = server.start(config)
     assert web is not None and web.url.startswith("http://127.0.0.1:")
     try:
         status, body = get_json(web.url + "api/status")

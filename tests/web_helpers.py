@@ -124,3 +124,18 @@ class Chromium:
                     self.proc.kill()
                     self.proc.wait(5)
             shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def open_clients(web, request, count, rcvbuf=None):
+    """``count`` sockets to the server ``web``, each having sent ``request`` (bytes) and
+    reading nothing: clients that are slow, stuck or gone quiet."""
+    import socket
+    port = int(web.url.rsplit(":", 1)[1].rstrip("/"))
+    clients = []
+    for _ in range(count):
+        s = socket.create_connection(("127.0.0.1", port), timeout=5)
+        if rcvbuf:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        s.sendall(request)
+        clients.append(s)
+    return clients
