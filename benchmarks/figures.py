@@ -119,15 +119,17 @@ def render(groups):
         out += ["## Layout methods side by side (`benchmarks/pipeline.py --only layout`)", "",
                 "The paper's isoline method against the free print direction, layout stage "
                 "only (profile `generic-0.5mm`; free method on a 1 mm grid, 200 iterations). "
-                "Invalid: the share of printing edges (isoline) or of the sheet's area (free) "
-                "whose shrink leaves the printable range by more than 1 %.", "",
+                "Invalid edges: the share of printing edges (isoline) or of triangle edges along "
+                "the print direction (free) whose shrink leaves the printable range; invalid "
+                "area: the share of the sheet in such triangles (isoline) or whose map leaves "
+                "the admissible set by more than 1 % (free).", "",
                 "| model | method | triangles | invalid edges | stretch | invalid area "
                 "(stretch / overshrink) | flipped | flatten s | peak RSS MB |",
                 "|---|---|---|---|---|---|---|---|---|"]
         for name, r in layout.items():
             area = (None if r.get("invalid_area_fraction") is None else "%s (%s / %s)" % (
-                _pct(r["invalid_area_fraction"]), _pct(r["stretch_area_fraction"]),
-                _pct(r["overshrink_area_fraction"])))
+                _pct(r["invalid_area_fraction"]), _pct(r.get("stretch_area_fraction")) or "-",
+                _pct(r.get("overshrink_area_fraction")) or "-"))
             cells = [name.split(" ")[0], r["method"], _k(r.get("triangles")),
                      _pct(r.get("invalid_edge_fraction")), _pct(r.get("stretch_edge_fraction")),
                      area, r.get("flipped"), _f(r.get("flatten_s"), 1),

@@ -147,6 +147,7 @@ if method == "isoline":
                stretch_edge_fraction=float(np.mean(flat.sigma < lim.s_min - 1e-3)),
                invalid_area_fraction=flat.invalid_area_fraction,
                stretch_area_fraction=flat.stretch_area_fraction,
+               overshrink_area_fraction=flat.overshrink_area_fraction,
                flipped=int(flat.flipped_triangles))
 else:
     mesh = build_grid_mesh(hf, 1.0)

@@ -108,13 +108,13 @@ class ControlMixin:
         except PipelineError as exc:
             self._fail(job, exc.text(), exc.code)
             return exc.text()
-        profile = self._profile_for(job["target"], sidecar)
+        profile = self.routes.profile_for(job["target"], sidecar)
         self.store.update(job["id"], profile=profile,
                           priority=sidecar.priority if sidecar else 0,
                           copies=sidecar.copies if sidecar else 1)
         job = self.store.get(job["id"])
-        if not any(self._eligible(s, job) for s in self.slots):
-            reason = self._no_printer_text(profile, job["target"])
+        if not any(self.routes.eligible(s, job) for s in self.slots):
+            reason = self.routes.no_printer_text(profile, job["target"])
             self._fail(job, reason, "job.no_printer")
             return reason
         return None

@@ -32,6 +32,7 @@ from hostd.notify import Notifier
 from hostd.plans import Plans
 from hostd.errors import HostdError
 from hostd.recovery import TWIN_FIX, RecoveryMixin
+from hostd.routes import Routes
 from hostd.slot import Slot
 from hostd.watchdog import LoopWatch
 from hostd.watcher import Watcher
@@ -49,6 +50,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         self.notify = notifier or Notifier()
         self.stop_event = threading.Event()
         self.slots = [Slot(p) for p in config.printers]
+        self.routes = Routes(config.node_id, self.slots)
         self.farm = Farm(config.drop_dir, config.node_id, config.lease_s)
         self.watcher = Watcher(config.drop_dir, config.settle_s, config.poll_s)
         self.plans = None            # hostd.plans.Plans, once the store is open
@@ -73,7 +75,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             raise HostdError(self._twin_text(twin), code="config.node_id", file=c.source,
                              key="node_id", fix=TWIN_FIX)
         self.store, damaged, verdict = J.open_checked(c.db_path)
-        self.plans = Plans(c, self.store, self._may_plan, self._fail, self._full_ok)
+        self.plans = Plans(c, self.store, self.routes.why_not, self._fail, self._full_ok)
         # Nothing prints before the loop starts: copies left by a crash can go.
         shutil.rmtree(c.spool_dir, ignore_errors=True)
         self.farm.setup()
@@ -179,12 +181,6 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
 
     # -- planning --------------------------------------------------------------------------------
 
-    def _may_plan(self, job):
-        """None when a printer here can print ``job``, else why not (for its failure)."""
-        if any(self._eligible(s, job) for s in self.slots):
-            return None
-        return self._no_printer_text(job["profile"], job["target"])
-
     def _gcode(self, job):
         if not job["outbox"]:
             return None
@@ -205,7 +201,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             if job["id"] in held or job["decision"]:   # started unrecorded, or a person decides
                 continue
             for slot in self.slots:
-                if slot.available() and self._eligible(slot, job):
+                if slot.available() and self.routes.eligible(slot, job):
                     self._start_print(slot, job)
                     break
 

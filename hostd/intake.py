@@ -37,11 +37,8 @@ class IntakeMixin:
         [{"file": rel path, "bytes", "complete", "this_node": whether its folder targets
         this node}]."""
         return [{"file": rel, "bytes": size, "complete": complete,
-                 "this_node": self._target_ok(rel.split("/")[0] if "/" in rel else None)}
+                 "this_node": self.routes.target_ok(rel.split("/")[0] if "/" in rel else None)}
                 for rel, size, complete in self.watcher.inputs]
-
-    def _target_ok(self, target):
-        return target is None or any(target in (s.name, s.config.profile) for s in self.slots)
 
     def _claim_room(self):
         """How many more files this node takes now. Alone it takes them all (they show up
@@ -54,7 +51,7 @@ class IntakeMixin:
 
     def _intake(self, cand):
         """Claim and record one complete file; True if this node took it."""
-        if not self._target_ok(cand.target):
+        if not self.routes.target_ok(cand.target):
             if cand.rel_path not in self._skipped:
                 self._skipped.add(cand.rel_path)
                 log.info("%s: folder %r is not a printer or profile of this node; leaving it",
@@ -84,29 +81,12 @@ class IntakeMixin:
         except PipelineError as exc:
             job_id = self.store.add(name, rel_path, path, **values)
             return self._fail(self.store.get(job_id), exc.text(), exc.code)
-        profile = self._profile_for(target, sidecar)
+        profile = self.routes.profile_for(target, sidecar)
         values.update(profile=profile, priority=sidecar.priority if sidecar else 0,
                       copies=sidecar.copies if sidecar else 1)
         job_id = self.store.add(name, rel_path, path, **values)
         log.info("job %s: %s claimed (profile %s)", job_id, rel_path, profile)
         job = self.store.get(job_id)
-        if not any(self._eligible(s, job) for s in self.slots):
-            return self._fail(job, self._no_printer_text(profile, target), "job.no_printer")
-
-    def _no_printer_text(self, profile, target):
-        return ("No printer on node %s uses profile %r%s. Drop the file into a folder named "
-                "after a printer or profile, or change the sidecar's `profile:`."
-                % (self.config.node_id, profile, " in folder %r" % target if target else ""))
-
-    def _profile_for(self, target, sidecar):
-        if sidecar is not None and sidecar.profile:
-            return sidecar.profile
-        for slot in self.slots:
-            if target in (slot.name, slot.config.profile):
-                return slot.config.profile
-        return self.slots[0].config.profile
-
-    def _eligible(self, slot, job):
-        t = job["target"]
-        return (t is None or t in (slot.name, slot.config.profile)) \
-            and slot.config.profile == job["profile"]
+        why_not = self.routes.why_not(job)
+        if why_not:
+            return self._fail(job, why_not, "job.no_printer")
