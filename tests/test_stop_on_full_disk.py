@@ -43,7 +43,7 @@ def _config(config):
 
 
 def test_cancel_reaches_the_printer_when_the_store_is_full(tmp_path):
-    with ticking_daemon(tmp_path, 0.05) as d:
+    with ticking_daemon(tmp_path, 0.01) as d:
         d.config = _config(d.config)
         write_dome(d.config.drop_dir / "dome.npy")
         _wait(lambda: _printing(d), what="the print")
@@ -56,7 +56,7 @@ def test_cancel_reaches_the_printer_when_the_store_is_full(tmp_path):
 
 
 def test_emergency_stop_reaches_the_printer_when_the_store_is_full(tmp_path):
-    with ticking_daemon(tmp_path, 0.05) as d:
+    with ticking_daemon(tmp_path, 0.01) as d:
         d.config = _config(d.config)
         write_dome(d.config.drop_dir / "dome.npy")
         _wait(lambda: _printing(d), what="the print")

@@ -17,7 +17,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "hostd" / "examples"
 
 @pytest.mark.slow
 def test_the_terrain_example_prints_and_is_filed(tmp_path):
-    d = in_process_daemon(tmp_path, 0)
+    d = in_process_daemon(tmp_path, 0, baud=10_000_000)   # a fast wire: the print is not the point
     try:
         for name in ("hills.yaml", "hills.npy"):          # the sidecar first
             shutil.copy(EXAMPLES / name, d.config.drop_dir / name)
@@ -44,7 +44,7 @@ def test_a_real_terrain_tile_at_40_mm_is_printed_once_a_person_decides(tmp_path)
     src = TERRAIN / "vancouver_island_south.png"
     if not src.exists():
         pytest.skip("the shared terrain is not here (%s)" % TERRAIN)
-    d = in_process_daemon(tmp_path, 0)
+    d = in_process_daemon(tmp_path, 0, baud=10_000_000)   # a fast wire: the print is not the point
     try:
         (d.config.drop_dir / "tile.yaml").write_text("size_mm: 40\nmax_fill_mm: 5.0\n"
                                                      "method: free\n")
