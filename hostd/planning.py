@@ -191,6 +191,7 @@ def child_main(argv):
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
             raise
         result = _disk_full(outdir)
+    (outdir / "stage.json").unlink(missing_ok=True)   # the plan's progress, not an output
     atomic_write(outdir / "result.json", json_text(result))
     return 0 if result["ok"] else 2
 

@@ -1,6 +1,8 @@
 """Shared fixtures: the repo root, ../shared (optional), and cached reference meshes."""
 
 import functools
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -8,6 +10,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 TERRAIN = SHARED / "data" / "terrain"
+
+# The daemons the tests start say where they are in $XDG_RUNTIME_DIR/hostd: a folder of
+# the test run's own, so they never replace the pointer of a daemon the user runs.
+os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="hostd-tests-run-")
 
 
 @pytest.fixture

@@ -4,7 +4,7 @@
 import argparse
 import time
 
-from daemon_helpers import in_process_daemon, write_dome
+from daemon_helpers import in_process_daemon, tick_until, write_dome
 from hostd import plans as plans_mod
 from hostd import jobs as J
 from hostd.commands import jobs as cli
@@ -38,5 +38,8 @@ def test_the_plans_stage_is_shown_while_it_runs(tmp_path, monkeypatch, capsys):
         assert len(seen) >= 2, seen
         assert any(": %s, " % s in page for s in seen)
         assert "(planning: " in listed and " s)" in listed
+        tick_until(d, lambda: d.store.list()[0]["outbox"], what="the plan's outputs")
+        from pathlib import Path
+        assert not (Path(d.store.list()[0]["outbox"]) / "stage.json").exists()
     finally:
         d.shutdown()
