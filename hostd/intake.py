@@ -4,14 +4,26 @@ A mixin of :class:`hostd.daemon.Daemon` (uses its watcher, farm, store and slots
 is claimed (renamed into this node's claim folder) and recorded with its sidecar's options
 and the profile it will be planned with; a node sharing the drop folder with other live
 nodes takes only what it can start soon.
+
+One file's fault never strands the others of a scan: it is logged, and a claimed file that
+cannot be recorded goes to failed/ with the reason. An outage (the job database full, the
+share failing) is no fault of a file: it stops the scan, and the loop's guards take it.
 """
 
 import logging
 
 from hostd import jobs as J
+from hostd.errors import HostdError
+from hostd.farm import archive_failed
 from hostd.watcher import name_problem, shown
 
 log = logging.getLogger("hostd.daemon")
+
+
+def outage(exc):
+    """Whether ``exc`` stops the whole node rather than one file: the job database full,
+    or a file operation on the share failing."""
+    return isinstance(exc, OSError) or (isinstance(exc, HostdError) and exc.code == J.DISK_FULL)
 
 
 class IntakeMixin:
@@ -19,7 +31,8 @@ class IntakeMixin:
 
     def _take_new(self, now):
         room = None
-        for cand in self.watcher.poll(now):
+        cands = self.watcher.poll(now)
+        for i, cand in enumerate(cands):
             room = self._claim_room() if room is None else room
             if room <= 0:
                 self.watcher.forget(cand)   # offered again at the next scan
@@ -27,9 +40,11 @@ class IntakeMixin:
             try:
                 if self._intake(cand):
                     room -= 1
-            except Exception:
-                # One file's fault must not strand the others of the scan; a claimed one
-                # is found in the claim folder again at the next start.
+            except Exception as exc:
+                if outage(exc):
+                    for rest in cands[i:]:
+                        self.watcher.forget(rest)   # offered again once it is over
+                    raise
                 log.exception("%s: could not be taken", shown(cand.rel_path))
 
     def dropped(self):
@@ -54,8 +69,8 @@ class IntakeMixin:
         if not self.routes.target_ok(cand.target):
             if cand.rel_path not in self._skipped:
                 self._skipped.add(cand.rel_path)
-                log.info("%s: folder %r is not a printer or profile of this node; leaving it",
-                         cand.rel_path, cand.target)
+                log.info("%s: folder %s is not a printer or profile of this node; leaving it",
+                         shown(cand.rel_path), shown(cand.target))
             return False
         claimed = self.farm.claim(cand)
         if claimed is None:
@@ -65,6 +80,32 @@ class IntakeMixin:
         return True
 
     def _add_job(self, name, rel_path, path, side, target):
+        """Record a claimed file as a job; one that cannot be goes to failed/."""
+        try:
+            self._new_job(name, rel_path, path, side, target)
+        except Exception as exc:
+            if outage(exc):
+                raise     # the file stays claimed, and is recorded once it is over
+            self._not_recorded(name if not name_problem(name) else path.name, path, side,
+                               shown(rel_path), exc)
+
+    def _not_recorded(self, name, path, side, rel_path, exc):
+        """File a claimed file whose recording failed on something unforeseen in failed/,
+        with the reason: left in the claim folder it would be nobody's until a restart."""
+        log.error("%s: could not be recorded as a job (%s: %s); it goes to failed/",
+                  rel_path, type(exc).__name__, exc, exc_info=exc)
+        text = ("hostd could not take %s: %s: %s. Nothing in the file is known to be wrong: "
+                "this is a fault in hostd, and the log of node %s has the details" % (
+                    rel_path, type(exc).__name__, exc, self.config.node_id))
+        job = next((j for j in self.store.list(J.ACTIVE) if j["input_path"] == str(path)), None)
+        if job is not None:
+            return self._fail(job, text + ". If a requeue fails the same way, report it with "
+                              "that log", "job.intake_failed")
+        archive_failed(path, side, self.config.failed_dir, name, text + ".\n\nTo try again, "
+                       "move the file (and its sidecar) back into the drop folder; if it fails "
+                       "the same way, report it with that log.")
+
+    def _new_job(self, name, rel_path, path, side, target):
         from pipeline.errors import PipelineError
         from pipeline.input.heightfield import check_file
         from pipeline.input.sidecar import load_sidecar

@@ -1,9 +1,10 @@
 """Names a drop folder can hold but a database or page cannot (bytes that are not UTF-8),
 and one file's failure at intake, never block the other files of a scan or the page."""
 
+import errno
 import os
 
-from daemon_helpers import in_process_daemon, tick_until, write_dome
+from daemon_helpers import fill_store, in_process_daemon, make_room, tick_until, write_dome
 from hostd.web.app import create_app
 
 
@@ -78,5 +79,64 @@ def test_junk_is_refused_as_it_is_taken_without_a_plan(tmp_path, monkeypatch):
         assert all(j["state"] == J.FAILED and j["error_code"] == "heightfield.content_mismatch"
                    for j in junk)
         assert started == [jobs["good.npy"]["id"]]
+    finally:
+        d.shutdown()
+
+
+def test_a_file_that_cannot_be_recorded_goes_to_failed_with_the_reason(tmp_path, monkeypatch):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        drop = d.config.drop_dir
+        write_dome(drop / "a.npy")
+        write_dome(drop / "b.npy")
+        real = d.store.add
+
+        def faulty(name, *args, **kw):
+            if name == "a.npy":
+                raise ValueError("a fault of this file alone")
+            return real(name, *args, **kw)
+        monkeypatch.setattr(d.store, "add", faulty)
+        failed = d.config.failed_dir
+        tick_until(d, lambda: (failed / "a.error.txt").exists() and len(d.store.list()) == 1)
+        assert [j["name"] for j in d.store.list()] == ["b.npy"]
+        assert (failed / "a.npy").is_file() and (failed / "a.yaml").is_file()
+        text = (failed / "a.error.txt").read_text()
+        assert "ValueError: a fault of this file alone" in text and "back into the drop" in text
+        assert not list(d.farm.claim_dir.glob("*/a.*"))
+    finally:
+        d.shutdown()
+
+
+def test_a_full_job_database_at_intake_waits_for_room_and_loses_no_file(tmp_path):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        fill_store(d.store)
+        write_dome(d.config.drop_dir / "a.npy")
+        tick_until(d, lambda: "disk_full" in d.problems())
+        assert list(d.problems()) == ["disk_full"] and d.store.list() == []
+        make_room(d.store)
+        tick_until(d, lambda: len(d.store.list()) == 1)
+        assert [j["name"] for j in d.store.list()] == ["a.npy"]
+    finally:
+        d.shutdown()
+
+
+def test_a_share_failing_at_a_claim_leaves_every_file_of_the_scan_for_later(tmp_path, monkeypatch):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        drop = d.config.drop_dir
+        write_dome(drop / "a.npy")
+        write_dome(drop / "b.npy")
+        real, failures = d.farm.claim, []
+
+        def flaky(cand):
+            if not failures:
+                failures.append(cand.path.name)
+                raise OSError(errno.EIO, "Input/output error", str(cand.path))
+            return real(cand)
+        monkeypatch.setattr(d.farm, "claim", flaky)
+        tick_until(d, lambda: failures and len(d.store.list()) == 2)
+        assert failures and sorted(j["name"] for j in d.store.list()) == ["a.npy", "b.npy"]
+        assert d.problems() == {}
     finally:
         d.shutdown()
