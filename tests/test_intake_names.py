@@ -140,3 +140,24 @@ def test_a_share_failing_at_a_claim_leaves_every_file_of_the_scan_for_later(tmp_
         assert d.problems() == {}
     finally:
         d.shutdown()
+
+
+def test_a_sidecar_that_cannot_be_read_fails_its_file_not_the_node(tmp_path, monkeypatch):
+    from pipeline.input import sidecar as sidecar_mod
+    real = open
+
+    def guarded(path, *args, **kw):
+        if os.path.basename(path) == "a.yaml":
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real(path, *args, **kw)
+    monkeypatch.setattr(sidecar_mod, "open", guarded, raising=False)
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        write_dome(d.config.drop_dir / "a.npy")
+        write_dome(d.config.drop_dir / "b.npy")
+        tick_until(d, lambda: len(d.store.list()) == 2 and (d.config.failed_dir / "a.npy").exists())
+        states = {j["name"]: (j["state"], j["error_code"]) for j in d.store.list()}
+        assert states["a.npy"] == ("failed", "sidecar.unreadable")
+        assert states["b.npy"][0] != "failed" and d.problems() == {}
+    finally:
+        d.shutdown()

@@ -1,7 +1,8 @@
 """The sidecar ``NAME.yaml`` beside an input: physical scale and per-file options.
 
 Errors (``InvalidSidecar``): ``sidecar.yaml``, ``.unknown_key``, ``.type``, ``.value``,
-``.conflict``; each names the file, the key and the fix.
+``.conflict``, ``.profile``, ``.too_large`` (over :data:`MAX_SIDECAR_BYTES`, refused
+unparsed), ``.unreadable``; each names the file, the key and the fix.
 """
 
 import re
@@ -106,13 +107,23 @@ def load_sidecar(path):
 
 def _read_capped(path, src):
     """The sidecar's text, refused past :data:`MAX_SIDECAR_BYTES` before it is parsed: a
-    sidecar holds a few keys, and parsing megabytes would stall the daemon's intake."""
-    with open(path, "rb") as f:
-        data = f.read(MAX_SIDECAR_BYTES + 1)
-    if len(data) > MAX_SIDECAR_BYTES:
-        size = max(path.stat().st_size, len(data))
-        raise InvalidSidecar("the sidecar is %d bytes; a sidecar may have at most %d"
-                             % (size, MAX_SIDECAR_BYTES),
+    sidecar holds a few keys, and parsing megabytes would stall the daemon's intake. The
+    size is looked at before the file is opened, and no more than the limit is read even
+    if it grows meanwhile."""
+    try:
+        size = path.stat().st_size
+        if size <= MAX_SIDECAR_BYTES:
+            with open(path, "rb") as f:
+                data = f.read(MAX_SIDECAR_BYTES + 1)
+            size = max(size, len(data))
+    except OSError as exc:
+        raise InvalidSidecar("cannot read the sidecar: %s" % (exc.strerror or exc),
+                             code="sidecar.unreadable", file=src,
+                             fix="make it readable to the user hostd runs as, or remove it"
+                             ) from None
+    if size > MAX_SIDECAR_BYTES:
+        raise InvalidSidecar("the sidecar is %d bytes; a sidecar may have at most %d (%d KiB)"
+                             % (size, MAX_SIDECAR_BYTES, MAX_SIDECAR_BYTES // 1024),
                              code="sidecar.too_large", file=src,
                              fix="a sidecar holds a few `key: value` lines (docs/sidecar.md); "
                                  "write only those")
