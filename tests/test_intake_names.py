@@ -161,3 +161,24 @@ def test_a_sidecar_that_cannot_be_read_fails_its_file_not_the_node(tmp_path, mon
         assert states["b.npy"][0] != "failed" and d.problems() == {}
     finally:
         d.shutdown()
+
+
+def test_an_input_that_cannot_be_read_fails_its_file_not_the_node(tmp_path, monkeypatch):
+    from pipeline.input import heightfield
+    real = open
+
+    def guarded(path, *args, **kw):
+        if os.path.basename(path) == "a.npy":
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real(path, *args, **kw)
+    monkeypatch.setattr(heightfield, "open", guarded, raising=False)
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        write_dome(d.config.drop_dir / "a.npy")
+        write_dome(d.config.drop_dir / "b.npy")
+        tick_until(d, lambda: len(d.store.list()) == 2 and (d.config.failed_dir / "a.npy").exists())
+        states = {j["name"]: (j["state"], j["error_code"]) for j in d.store.list()}
+        assert states["a.npy"] == ("failed", "heightfield.unreadable")
+        assert states["b.npy"][0] != "failed" and d.problems() == {}
+    finally:
+        d.shutdown()

@@ -106,14 +106,21 @@ def check_file(path):
     if not path.is_file():
         raise _fail("heightfield.not_found", "input file not found", name,
                     "check the path" if not path.is_dir() else "give a file, not a directory")
-    if path.stat().st_size == 0:
-        raise _fail("heightfield.empty", "input file is empty (0 bytes)", name,
-                    "the upload or copy did not finish; send the file again")
     ext = path.suffix.lower()
-    if ext not in IMAGE_EXT + ARRAY_EXT + MESH_EXT:
-        raise _fail("heightfield.unsupported_type", "unsupported input type %r" % ext, name,
-                    "use a grayscale PNG/TIFF, .npy/.npz in mm, or an STL/OBJ/PLY/GLB mesh")
-    _check_magic(path, ext)
+    try:
+        if path.stat().st_size == 0:
+            raise _fail("heightfield.empty", "input file is empty (0 bytes)", name,
+                        "the upload or copy did not finish; send the file again")
+        if ext not in IMAGE_EXT + ARRAY_EXT + MESH_EXT:
+            raise _fail("heightfield.unsupported_type", "unsupported input type %r" % ext, name,
+                        "use a grayscale PNG/TIFF, .npy/.npz in mm, or an STL/OBJ/PLY/GLB mesh")
+        _check_magic(path, ext)
+    except OSError as exc:
+        # The file's own fault (its permissions), not the share's: the daemon would take an
+        # OSError here for the share failing, and stop taking every other file.
+        raise _fail("heightfield.unreadable", "cannot read the input: %s"
+                    % (exc.strerror or exc), name,
+                    "make it readable to the user hostd runs as") from None
     return ext
 
 
