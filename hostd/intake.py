@@ -11,6 +11,7 @@ share failing) is no fault of a file: it stops the scan, and the loop's guards t
 """
 
 import logging
+import time
 
 from hostd import jobs as J
 from hostd.errors import HostdError
@@ -18,6 +19,9 @@ from hostd.farm import archive_failed
 from hostd.watcher import name_problem, shown
 
 log = logging.getLogger("hostd.daemon")
+# Files are taken for at most this long per round of the loop, the rest at the next: a
+# few thousand dropped at once took 40 s in one round, and the loop counts as stuck at 30.
+SLICE_S = 0.5
 
 
 def outage(exc):
@@ -32,7 +36,13 @@ class IntakeMixin:
     def _take_new(self, now):
         room = None
         cands = self.watcher.poll(now)
+        end = time.monotonic() + SLICE_S
         for i, cand in enumerate(cands):
+            if i and time.monotonic() >= end:
+                for rest in cands[i:]:
+                    self.watcher.forget(rest)
+                self.watcher.wake.set()     # scan again at the next round, not after poll_s
+                return
             room = self._claim_room() if room is None else room
             if room <= 0:
                 self.watcher.forget(cand)   # offered again at the next scan
