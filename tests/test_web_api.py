@@ -384,7 +384,13 @@ def test_an_upload_the_watcher_would_ignore_is_refused(node):
         r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",
                              data={"file": (io.BytesIO(b"\x93NUMPY"), name)})
         assert r.status_code == 400 and "ignores" in r.json["error"], name
-    assert not list(node.config.drop_dir.glob("*lock*"))
+    # The other names the watcher passes over are refused too, each with its reason.
+    for name in (".~lock.dome.npy", ".dome.npy", "dome.npy.part", "dome.npy.crdownload",
+                 "dome.npy~"):
+        r = node.client.post("/api/jobs", headers=node.auth(), content_type="multipart/form-data",
+                             data={"file": (io.BytesIO(b"\x93NUMPY"), name)})
+        assert r.status_code == 400 and r.json["ok"] is False and r.json["error"], name
+    assert not [p for p in node.config.drop_dir.rglob("*") if p.is_file()]
 
 
 def test_upload_size_limit(node):
