@@ -182,3 +182,25 @@ def test_an_input_that_cannot_be_read_fails_its_file_not_the_node(tmp_path, monk
         assert states["b.npy"][0] != "failed" and d.problems() == {}
     finally:
         d.shutdown()
+
+
+def test_junk_under_a_name_that_is_not_utf8_is_refused_under_its_safe_name(tmp_path):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        (d.config.drop_dir / "p1").mkdir()       # the printer's own folder: taken here
+        with open(_bytes_path(d.config.drop_dir / "p1", b"bad\xff\xfename.npy"), "wb") as f:
+            f.write(b"junk junk\n" * 40)
+        client = create_app(d.config, d.store, d).test_client()
+        d.tick()
+        assert client.get("/").status_code == 200
+        assert client.get("/api/status").status_code == 200
+        error = d.config.failed_dir / "bad_name.error.txt"
+        tick_until(d, error.exists)
+        text = error.read_text(encoding="utf-8")
+        assert "p1/bad\ufffd\ufffdname.npy" in text and "not .npy data" in text
+        assert (d.config.failed_dir / "bad_name.npy").is_file()
+        [job] = d.store.list()
+        assert job["error_code"] == "heightfield.content_mismatch"
+        assert client.get("/api/jobs").status_code == 200 and client.get("/").status_code == 200
+    finally:
+        d.shutdown()
