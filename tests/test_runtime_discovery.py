@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from daemon_helpers import DaemonProcess, write_config, write_dome
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,3 +42,99 @@ def test_hostd_jobs_finds_the_running_daemon_from_another_folder(tmp_path):
     finally:
         assert d.stop() == 0, d.output()[-2000:]
     assert not pointer.exists()
+
+
+# -- which daemon a terminal command is about, without starting one ----------------------------
+
+@pytest.fixture
+def pointer(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "run"))
+    return tmp_path / "run" / "hostd" / "daemon.json"
+
+
+@pytest.fixture
+def traces(pointer, monkeypatch):
+    """traces(folder, job, running, config): what a daemon leaves in ``folder`` (its
+    ``hostd.yaml``, a store holding ``job``) and, when ``running``, its lock held and the
+    runtime file naming it, as `hostd run -c CONFIG` started in ``folder`` does; returns
+    its config."""
+    from hostd import jobs as J
+    from hostd import runtime
+    from hostd.config import load_config
+    from hostd.lock import DaemonLock
+    locks = []
+
+    def make(folder, job, running, config="hostd.yaml"):
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "hostd.yaml").write_text("poll_s: 2.0\n")
+        monkeypatch.chdir(folder)
+        config = load_config(config)
+        J.JobStore(config.db_path).add(job, job, folder / job, profile="p")
+        if running:
+            locks.append(DaemonLock(config.lock_path))
+            locks[-1].acquire()
+            runtime.publish(config, folder)
+        return config
+    yield make
+    for lock in locks:
+        lock.release()
+
+
+def listed(capsys):
+    from hostd.cli import main
+    assert main(["jobs", "--json"]) == 0
+    return [j["name"] for j in json.loads(capsys.readouterr().out)]
+
+
+def test_a_daemon_started_with_a_relative_config_is_found_from_another_folder(
+        tmp_path, monkeypatch, traces, capsys):
+    traces(tmp_path / "started", "there.png", running=True)
+    monkeypatch.chdir(tmp_path)
+    assert listed(capsys) == ["there.png"]
+
+
+@pytest.mark.parametrize("here", ["hostd.yaml", "hostd-data"])
+def test_this_folders_daemon_comes_before_the_one_running_elsewhere(
+        here, tmp_path, monkeypatch, traces, capsys):
+    from hostd import jobs as J
+    from hostd.cli import main
+    from hostd.config import load_config
+    traces(tmp_path / "elsewhere", "there.png", running=True,
+           config=tmp_path / "elsewhere" / "hostd.yaml")
+    folder = tmp_path / "here"
+    if here == "hostd.yaml":
+        traces(folder, "here.png", running=False)
+    else:                                           # `hostd run` with the embedded default
+        folder.mkdir()
+        monkeypatch.chdir(folder)
+        J.JobStore(load_config().db_path).add("here.png", "here.png", folder, profile="p")
+    assert listed(capsys) == ["here.png"]
+    assert main(["jobs"]) == 0
+    assert "a daemon runs with --config %s" % (tmp_path / "elsewhere" / "hostd.yaml") in \
+        capsys.readouterr().err
+
+
+def test_an_action_on_this_folders_stopped_daemon_names_the_running_one(
+        tmp_path, traces, capsys):
+    from hostd.cli import main
+    from hostd.jobs import JobStore
+    other = traces(tmp_path / "elsewhere", "there.png", running=True)
+    here = traces(tmp_path / "here", "here.png", running=False)
+    job = JobStore(here.db_path).list()[0]["id"]
+    assert main(["cancel", job]) == 2
+    err = capsys.readouterr().err
+    assert "error control.no_daemon" in err
+    assert "a daemon runs with --config %s" % (tmp_path / "elsewhere" / other.source) in err
+
+
+def test_when_no_daemon_is_found_the_command_says_where_it_looked(
+        tmp_path, monkeypatch, pointer, capsys):
+    from hostd.cli import main
+    monkeypatch.chdir(tmp_path)
+    for argv in (["jobs"], ["job", "x"], ["cancel", "x"], ["pause", "sim"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "error control.not_found" in err and "--config FILE" in err, err
+        for place in ("./hostd.yaml", str(tmp_path / "hostd-data" / "state" / "jobs.sqlite"),
+                      str(pointer)):
+            assert place in err, (place, err)

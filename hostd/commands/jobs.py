@@ -16,7 +16,8 @@ WAIT_S = 15.0
 
 def _common(p):
     p.add_argument("--config", "-c", default=None, metavar="FILE",
-                   help="hostd.yaml of the daemon (default: the embedded default)")
+                   help="hostd.yaml of the daemon (default: ./hostd.yaml, else the daemon "
+                        "started in this folder, else the running one)")
 
 
 def add_parser(sub):
@@ -47,23 +48,29 @@ def _states():
 
 
 def _open(args, need_daemon):
-    """The daemon's configuration, job store and pid: the one ``--config`` names, else the
-    running daemon's (from its runtime file, whatever folder it was started in), else the
-    embedded default's in this folder."""
-    from hostd.config import load_config
+    """The daemon's configuration, job store and pid (None when it does not run), found as
+    :func:`hostd.runtime.locate` says; ``need_daemon``: refuse when it does not run."""
     from hostd.lock import running_pid
     from hostd.jobs import JobStore
-    from hostd.runtime import running_config, runtime_file
-    config = load_config(args.config) if args.config else (running_config() or load_config())
+    from hostd.runtime import locate
+    config = locate(args.config)
     pid = running_pid(config.lock_path)
-    if need_daemon and not pid:
-        raise HostdError("no hostd daemon runs with state folder %s" % config.state_dir,
-                         code="control.no_daemon",
-                         fix="start it with `hostd run%s`, or point at its configuration with "
-                             "--config (a running daemon says where it is in %s)"
-                             % (" --config " + args.config if args.config else "",
-                                runtime_file()))
+    if need_daemon:
+        _require_daemon(config, pid)
     return config, JobStore(config.db_path, create=False), pid
+
+
+def _require_daemon(config, pid):
+    from hostd.config import DEFAULT_PATH
+    from hostd.runtime import elsewhere, runtime_file
+    if pid:
+        return
+    own = config.source not in (None, str(DEFAULT_PATH))
+    raise HostdError("no hostd daemon runs with state folder %s%s"
+                     % (config.state_dir, elsewhere(config)), code="control.no_daemon",
+                     fix="start it with `hostd run%s`, or point at its configuration with "
+                         "--config (a running daemon says where it is in %s)"
+                         % (" --config " + config.source if own else "", runtime_file()))
 
 
 def _fail(exc):
@@ -85,7 +92,9 @@ def cmd_jobs(args):
         print(json.dumps(rows, indent=1))
         return 0
     if not pid:
-        print("(no daemon runs: showing the stored jobs)", file=sys.stderr)
+        from hostd.runtime import elsewhere
+        print("(no daemon runs with %s: showing its stored jobs%s)"
+              % (config.state_dir, elsewhere(config)), file=sys.stderr)
     print("%-22s %-11s %-10s %5s %-3s %-19s %s" % ("ID", "STATE", "PRINTER", "PROG", "PRI",
                                                   "CREATED", "NAME"))
     for r in rows:
