@@ -27,6 +27,29 @@ def test_an_unknown_job_is_the_same_error_for_every_job_command(tmp_path, monkey
     assert store.pending_requests() == []        # nothing was asked of the daemon
 
 
+def test_an_unknown_job_is_the_same_error_whether_or_not_a_daemon_runs(
+        tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)                   # a stopped daemon's store in this folder
+    J.JobStore(Path("hostd-data/state/jobs.sqlite")).close()
+    assert main(["job", "nonexistent"]) == 2
+    err_job = capsys.readouterr().err
+    assert "error jobs.unknown" in err_job
+    for action in cli.JOB_ACTIONS:
+        assert (main([action, "nonexistent"]), capsys.readouterr().err) == (2, err_job)
+
+
+def test_an_unknown_printer_is_refused_before_asking_the_daemon(tmp_path, monkeypatch, capsys):
+    store = J.JobStore(tmp_path / "jobs.sqlite")
+    store.set_printer("sim")
+    monkeypatch.setattr(cli, "_open", lambda args, need_daemon: (None, store, 1234))
+    monkeypatch.setattr(cli, "WAIT_S", 0.05)      # no daemon answers here
+    for action in ("pause", "resume"):
+        rc = cli.cmd_action(argparse.Namespace(action=action, target="nope", config=None))
+        err = capsys.readouterr().err
+        assert rc == 2 and "error control.unknown_printer" in err and "sim" in err, err
+    assert store.pending_requests() == []
+
+
 def test_a_missing_input_writes_nothing(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["plan", "missing.png", "-q"]) == 2

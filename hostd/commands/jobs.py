@@ -3,6 +3,10 @@
 ``hostd jobs [--state S]``, ``hostd job ID``, ``hostd requeue ID``, ``hostd cancel ID``,
 ``hostd pause PRINTER``, ``hostd resume PRINTER``. Actions go to the daemon through the
 store's control table; without a running daemon they are refused (listing still works).
+
+Exit status: 0 done; 1 the daemon refused or did not answer; 2 nothing was asked of the
+daemon, and stderr says why with an error code (an unknown job or printer, no daemon found
+or running, a full or damaged job database).
 """
 
 import json
@@ -152,10 +156,14 @@ JOB_ACTIONS = ("requeue", "cancel", "approve")
 
 def cmd_action(args):
     try:
-        _, store, _ = _open(args, need_daemon=True)
+        config, store, pid = _open(args, need_daemon=False)
+        # An unknown job or printer is an error of the command line, told as `hostd job`
+        # tells it (whether or not a daemon runs), and nothing is asked of the daemon.
         if args.action in JOB_ACTIONS:
-            # An unknown job is an error of the command line, told as `hostd job` tells it.
             args.target = store.require(args.target)["id"]
+        else:
+            _require_printer(store, args.target)
+        _require_daemon(config, pid)
         req = store.request(args.action, args.target)   # e.g. jobs.disk_full
     except HostdError as exc:
         return _fail(exc)
@@ -166,3 +174,10 @@ def cmd_action(args):
     ok, text = answer
     print(text if ok else "hostd: %s" % text, file=sys.stdout if ok else sys.stderr)
     return 0 if ok else 1
+
+
+def _require_printer(store, name):
+    known = store.printers()
+    if known and name not in known:     # none yet: a daemon starting, let it answer
+        raise HostdError("no printer %r" % name, code="control.unknown_printer",
+                         fix="printers here: " + ", ".join(sorted(known)))
