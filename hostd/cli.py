@@ -33,6 +33,24 @@ def build_parser():
 
 
 def main(argv=None):
+    try:
+        try:
+            return _run(argv)
+        finally:
+            # Output to a pipe waits in a buffer: flush it here, so that a reader gone away
+            # shows below and not as Python's "Exception ignored ... BrokenPipeError" at exit
+            # (which also happens on --help, where argparse exits by SystemExit).
+            sys.stdout.flush()
+    except BrokenPipeError:
+        # The reader went away (`hostd jobs | head`): stop quietly with 141, the status a
+        # shell reports for cat or ls ended by SIGPIPE (128 + 13), so `set -o pipefail`
+        # scripts see hostd as they see those; stdout goes to devnull so that Python's
+        # own flush at exit finds no pipe to complain about.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+
+
+def _run(argv):
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -43,11 +61,6 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("hostd: interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        # The reader went away (`hostd jobs | head`): stop quietly, as cat and ls do, and
-        # keep Python from complaining again when it flushes stdout at exit.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
     except sqlite3.DatabaseError as exc:
         from hostd.jobs import DAMAGED, is_damage
         if not is_damage(exc):

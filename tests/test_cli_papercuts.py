@@ -3,9 +3,12 @@ traceback into a closed pipe, nothing written for a missing input, and help that
 every output."""
 
 import argparse
+import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from hostd import jobs as J
 from hostd.cli import main
@@ -79,6 +82,28 @@ def test_a_closed_pipe_ends_the_listing_quietly(tmp_path):
                          shell=True, cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert len(out.stdout.splitlines()) == 2
     assert "Traceback" not in out.stderr and "BrokenPipe" not in out.stderr, out.stderr
+
+
+@pytest.mark.parametrize("command", ["jobs", "job", "--help"])
+def test_a_closed_pipe_ends_quietly_when_the_output_waits_in_a_buffer(command, tmp_path):
+    """A short listing stays in Python's buffer until exit: the reader being gone shows
+    only then, and still ends quietly with 141."""
+    store = J.JobStore(tmp_path / "state" / "jobs.sqlite")
+    job = store.add("part.png", "part.png", tmp_path / "part.png", profile="p")
+    store.close()
+    (tmp_path / "hostd.yaml").write_text("state_dir: %s\n" % (tmp_path / "state"))
+    argv = {"jobs": ["jobs"], "job": ["job", job], "--help": ["--help"]}[command]
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    env["PYTHONPATH"] = str(ROOT)
+    read, write = os.pipe()
+    os.close(read)                                # the reader is gone before the first byte
+    try:
+        r = subprocess.run([sys.executable, "-m", "hostd"] + argv, cwd=tmp_path, env=env,
+                           stdout=write, stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(write)
+    assert r.returncode == 141, r.stderr
+    assert "BrokenPipe" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr
 
 
 def test_waitress_queue_depth_warnings_stay_out_of_the_log():
