@@ -53,11 +53,16 @@ def test_an_unknown_printer_is_refused_before_asking_the_daemon(tmp_path, monkey
     assert store.pending_requests() == []
 
 
-def test_a_missing_input_writes_nothing(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("where", ["missing.png", "a-folder"])
+def test_a_missing_input_writes_nothing(where, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert main(["plan", "missing.png", "-q"]) == 2
-    assert "heightfield.not_found" in capsys.readouterr().err
-    assert list(tmp_path.iterdir()) == []
+    if where == "a-folder":
+        (tmp_path / where).mkdir()
+    assert main(["plan", where, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "heightfield.not_found" in err
+    assert ("a folder, not a file" if where == "a-folder" else "file not found") in err
+    assert [p.name for p in tmp_path.iterdir()] == ([where] if where == "a-folder" else [])
 
 
 def test_plan_help_lists_every_output(capsys):

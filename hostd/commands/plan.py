@@ -12,7 +12,8 @@ def add_parser(sub):
     p = sub.add_parser("plan", help="plan one height field into flat layout, pictures and report",
                        description="Run the flatten-and-plan pipeline on INPUT and write "
                                    "into OUTDIR: %s (with a coloured input also %s); on an "
-                                   "error only NAME.error.json." % (
+                                   "error only NAME.error.json (nothing when INPUT is "
+                                   "missing)." % (
                                        ", ".join(_outputs(False)),
                                        ", ".join(sorted(set(_outputs(True))
                                                         - set(_outputs(False))))))
@@ -78,8 +79,9 @@ def run(args):
     name = Path(args.input).stem
     if not Path(args.input).is_file():
         # Nothing was planned: no NAME.error.json beside wherever the command ran.
-        print("hostd plan: error heightfield.not_found: %s: input file not found. Fix: give "
-              "the path of a height field (PNG/TIFF, .npy/.npz, STL/OBJ/PLY/GLB)" % args.input,
+        what = "a folder, not a file" if Path(args.input).is_dir() else "input file not found"
+        print("hostd plan: error heightfield.not_found: %s: %s. Fix: give the path of a "
+              "height field (PNG/TIFF, .npy/.npz, STL/OBJ/PLY/GLB)" % (args.input, what),
               file=sys.stderr)
         return 2
     try:
