@@ -1,10 +1,9 @@
 """Run the pipeline on one file and write its outputs (used by `hostd plan` and the daemon).
 
-Outputs for input ``NAME.*`` (all published together, see ``hostd.outputs``):
-``NAME.report.json``, ``NAME.gcode``, ``NAME.flat.ply``, ``NAME.simulated.ply``,
-``NAME.stress.png``, ``NAME.preview.png``, ``NAME.toolpath.png``, ``NAME.input.png``,
-and with colour ``NAME.texture.png`` and ``NAME.outline.svg``. On a pipeline error
-only ``NAME.error.json`` is written.
+Outputs for input ``NAME.*`` (all published together, see ``hostd.outputs``): the files
+:func:`output_names` lists (report, G-code, flat and simulated meshes, pictures, and with
+colour the texture and its outline), the one list the writer and ``hostd plan --help``
+take their names from. On a pipeline error only ``NAME.error.json`` is written.
 """
 
 import json
@@ -26,6 +25,7 @@ TEXTURE_DPI = 300
 
 
 def output_names(name, color=False):
+    """Every file a plan of ``NAME.*`` writes, by kind (the writer takes its names from here)."""
     kinds = ["report.json", "gcode", "flat.ply", "simulated.ply", "stress.png", "preview.png",
              "toolpath.png", "input.png"]
     if color:
@@ -51,7 +51,7 @@ def run(input_path, profile, outdir, progress=None, force_fit=False, method=None
         with Staging(outdir) as st:
             write_outputs(st, plan)
             plan.report["timing_s"]["write"] = round(time.perf_counter() - t, 4)
-            st.write(name + ".report.json", json_text(plan.report))
+            st.write(output_names(name)["report.json"], json_text(plan.report))
         stale = outdir / (name + ".error.json")
         if stale.exists():
             stale.unlink()
@@ -69,14 +69,17 @@ def write_outputs(st, plan):
     Adds the report's ``gcode`` section and the ``gcode``/``texture`` timings.
     """
     name, mesh, flat, sim, prof = plan.name, plan.mesh, plan.flat, plan.sim, plan.profile
+    # Every file's name comes from output_names (a KeyError for one it does not list),
+    # so `hostd plan --help`, which lists them from there, cannot miss one.
+    out = output_names(name, color=plan.hf.color is not None)
     lim = prof.shrink_limits
     timing = plan.report["timing_s"]
     tp = plan.toolpaths
     t = time.perf_counter()
-    stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(name + ".gcode"), name=name,
+    stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name,
                               center=False, deltas=_segment_deltas(plan))
     if plan.blocked:
-        _mark_not_printable(st.path(name + ".gcode"), plan.problems)
+        _mark_not_printable(st.path(out["gcode"]), plan.problems)
     timing["gcode"] = round(time.perf_counter() - t, 4)
     plan.report["gcode"] = _gcode_report(stats)
     for problem in link_problems(stats, prof):
@@ -87,39 +90,39 @@ def write_outputs(st, plan):
         colors = texture.vertex_colors(plan.hf, mesh.vertices)
         image, info = texture.texture_image(mesh.vertices, mesh.faces, plan.xy_bed, colors,
                                             dpi=TEXTURE_DPI)
-        texture.save_texture(image, st.path(name + ".texture.png"), dpi=TEXTURE_DPI)
-        st.write(name + ".outline.svg", texture.outline_svg(
+        texture.save_texture(image, st.path(out["texture.png"]), dpi=TEXTURE_DPI)
+        st.write(out["outline.svg"], texture.outline_svg(
             plan.xy_bed, mesh.faces, info["marks"], info["margin_mm"], dpi=TEXTURE_DPI))
         plan.report["texture"] = {"dpi": TEXTURE_DPI, "size_px": list(info["size_px"]),
                                   "opacity": info["opacity"], "marks": info["marks"]}
     timing["texture"] = round(time.perf_counter() - t, 4)
     travel = [(a[-1], b[0]) for a, b in zip(tp.traces[:-1], tp.traces[1:])]
-    st.write_image(name + ".toolpath.png", render.toolpath_image(
+    st.write_image(out["toolpath.png"], render.toolpath_image(
         tp.traces, tp.sigma, lim.s_min, lim.s_max, prof.path_width_mm,
         travel=np.array(travel) if travel else None,
         title="%s: tool paths, shrink per segment" % name))
     flat3 = np.column_stack([flat.xy, np.zeros(len(flat.xy))])
-    plyio.write_ply(st.path(name + ".flat.ply"), flat3, mesh.faces)
+    plyio.write_ply(st.path(out["flat.ply"]), flat3, mesh.faces)
     disp = sim.displacement_mm
     vmax = max(float(np.ceil(disp.max())), 1.0)
     colors = figure.colormap(disp, 0.0, vmax, name="displacement")
-    plyio.write_ply(st.path(name + ".simulated.ply"), sim.vertices, mesh.faces,
+    plyio.write_ply(st.path(out["simulated.ply"]), sim.vertices, mesh.faces,
                     vertex_colors=colors)
     if hasattr(flat, "direction"):
         pts, ticks, sig = render.direction_ticks(flat.xy, mesh.faces, flat.direction, flat.sigma)
-        st.write_image(name + ".stress.png", render.stress_image(
+        st.write_image(out["stress.png"], render.stress_image(
             pts, ticks, sig, lim.s_min, lim.s_max, faces=mesh.faces,
             title="%s: flat layout, shrink and print direction per triangle" % name))
     else:
-        st.write_image(name + ".stress.png", render.stress_image(
+        st.write_image(out["stress.png"], render.stress_image(
             flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
             title="%s: flat layout, shrink per printing edge" % name))
-    st.write_image(name + ".preview.png", render.preview_image(
+    st.write_image(out["preview.png"], render.preview_image(
         mesh.vertices, mesh.faces, sim.vertices, disp,
         title=preview_title(plan)))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
-    st.write_image(name + ".input.png", hfimage.heightfield_image(
+    st.write_image(out["input.png"], hfimage.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed)" % (name, count),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))

@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from hostd.planner import output_names
 from pipeline.input import shapes
 
 # The report keys other tools read: renaming any is a breaking change.
@@ -229,6 +230,8 @@ def test_colour_input_gets_a_screen_print_texture_and_outline(tmp_path):
     Image.fromarray(rgb.astype(np.uint8)).save(tmp_path / "c.color.png")
     r = hostd("plan", tmp_path / "c.npy", "-o", tmp_path / "out")
     assert r.returncode == 0, r.stderr
+    # Exactly the files `hostd plan --help` lists (from the same list).
+    assert sorted(os.listdir(tmp_path / "out")) == sorted(output_names("c", color=True).values())
     report = json.loads((tmp_path / "out" / "c.report.json").read_text())
     assert report["heightfield"]["has_color"] and report["texture"]["dpi"] == 300
     with Image.open(tmp_path / "out" / "c.texture.png") as im:
