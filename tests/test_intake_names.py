@@ -4,6 +4,8 @@ and one file's failure at intake, never block the other files of a scan or the p
 import errno
 import os
 
+import pytest
+
 from daemon_helpers import fill_store, in_process_daemon, make_room, tick_until, write_dome
 from hostd.web.app import create_app
 
@@ -142,43 +144,26 @@ def test_a_share_failing_at_a_claim_leaves_every_file_of_the_scan_for_later(tmp_
         d.shutdown()
 
 
-def test_a_sidecar_that_cannot_be_read_fails_its_file_not_the_node(tmp_path, monkeypatch):
-    from pipeline.input import sidecar as sidecar_mod
+@pytest.mark.parametrize("module, unreadable, code", [
+    ("pipeline.input.sidecar", "a.yaml", "sidecar.unreadable"),
+    ("pipeline.input.heightfield", "a.npy", "heightfield.unreadable")])
+def test_a_file_that_cannot_be_read_fails_itself_not_the_node(tmp_path, monkeypatch, module,
+                                                               unreadable, code):
+    import importlib
     real = open
 
     def guarded(path, *args, **kw):
-        if os.path.basename(path) == "a.yaml":
+        if os.path.basename(path) == unreadable:
             raise PermissionError(errno.EACCES, "Permission denied", str(path))
         return real(path, *args, **kw)
-    monkeypatch.setattr(sidecar_mod, "open", guarded, raising=False)
+    monkeypatch.setattr(importlib.import_module(module), "open", guarded, raising=False)
     d = in_process_daemon(tmp_path, 0)
     try:
         write_dome(d.config.drop_dir / "a.npy")
         write_dome(d.config.drop_dir / "b.npy")
         tick_until(d, lambda: len(d.store.list()) == 2 and (d.config.failed_dir / "a.npy").exists())
         states = {j["name"]: (j["state"], j["error_code"]) for j in d.store.list()}
-        assert states["a.npy"] == ("failed", "sidecar.unreadable")
-        assert states["b.npy"][0] != "failed" and d.problems() == {}
-    finally:
-        d.shutdown()
-
-
-def test_an_input_that_cannot_be_read_fails_its_file_not_the_node(tmp_path, monkeypatch):
-    from pipeline.input import heightfield
-    real = open
-
-    def guarded(path, *args, **kw):
-        if os.path.basename(path) == "a.npy":
-            raise PermissionError(errno.EACCES, "Permission denied", str(path))
-        return real(path, *args, **kw)
-    monkeypatch.setattr(heightfield, "open", guarded, raising=False)
-    d = in_process_daemon(tmp_path, 0)
-    try:
-        write_dome(d.config.drop_dir / "a.npy")
-        write_dome(d.config.drop_dir / "b.npy")
-        tick_until(d, lambda: len(d.store.list()) == 2 and (d.config.failed_dir / "a.npy").exists())
-        states = {j["name"]: (j["state"], j["error_code"]) for j in d.store.list()}
-        assert states["a.npy"] == ("failed", "heightfield.unreadable")
+        assert states["a.npy"] == ("failed", code)
         assert states["b.npy"][0] != "failed" and d.problems() == {}
     finally:
         d.shutdown()
