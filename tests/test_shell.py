@@ -4,10 +4,16 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
+from pipeline.layout.curvature import isoline_directions
+from pipeline.layout.isoline import flatten
 from pipeline.mechanics.constraints import topology
 from pipeline.mechanics.pd import minimize_lbfgs
 from pipeline.mechanics.shell import (ShellSystem, dihedral, face_lengths, min_angle_deg,
                                       nearest_orthonormal)
+from pipeline.simulation.forward import simulate
+from pipeline.simulation.shell import directional_rest, isoline_rest, simulate_shell
+
+from meshes import longest_diameter, reference_mesh
 
 
 def _sheet(nx=13, ny=7, size=(24.0, 12.0), jitter=0.0, seed=0):
@@ -151,3 +157,26 @@ def test_a_strip_settles_to_its_programmed_curvature(kappa):
         assert fitted == pytest.approx(kappa, rel=0.05)
     else:
         assert np.ptp(P[:, 2]) < 1e-3
+
+
+def test_free_simulation_along_the_isolines_matches_the_isoline_simulation():
+    """The free method's sheet (each triangle shrunk by its sigma along ``d``, thin
+    shell) with ``d`` set to the isoline direction settles where the isoline method's
+    own simulation of the same layout does; turned across the isolines it does not."""
+    mesh = reference_mesh("dome")
+    flat = flatten(mesh)
+    ld = longest_diameter(mesh)
+    isoline = simulate(mesh, flat)
+    _, sigma, _ = isoline_rest(mesh, flat.xy)
+    d = isoline_directions(flat.xy, mesh.faces, mesh.vertex_level)
+    thick = np.full(len(mesh.faces), 1.5)
+
+    def free(direction):
+        rest = directional_rest(flat.xy, mesh.faces, direction, sigma)
+        return simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick)
+
+    along, across = free(d), free(np.stack([-d[:, 1], d[:, 0]], axis=1))
+    apart = np.linalg.norm(along.vertices - isoline.vertices, axis=1).mean() / ld
+    assert apart < 0.005, apart
+    assert abs(along.mean_displacement_mm - isoline.mean_displacement_mm) < 0.005 * ld
+    assert np.linalg.norm(across.vertices - isoline.vertices, axis=1).mean() / ld > 10 * apart
