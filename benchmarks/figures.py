@@ -29,15 +29,19 @@ PLAN_COLUMNS = [
     ("triangles", lambda n, r: _k(r.get("triangles"))),
     ("invalid edges", lambda n, r: _pct(r.get("invalid_edge_fraction"))),
     ("invalid area", lambda n, r: _pct(r.get("invalid_area_fraction"))),
+    ("flipped", lambda n, r: r.get("flipped")),
+    ("fit scale", lambda n, r: _f(r.get("fit_scale"), 2)),
     ("sim. displacement", lambda n, r: _disp(r)),
     ("at rest", lambda n, r: _rest(r)),
     ("traces", lambda n, r: r.get("traces")),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
+    ("overlap", lambda n, r: _pct(r.get("overlap"))),
     ("direction p95 deg", lambda n, r: _f((r.get("direction_angle_deg") or {}).get("p95"), 1)),
     ("load to simulation s", lambda n, r: _median(r, "load_to_simulation_s")),
     ("all stages s", lambda n, r: _median(r, "all_stages_s")),
     ("wall s", lambda n, r: _median(r, "wall_s")),
+    ("paths + G-code s", lambda n, r: _f(r.get("toolpath_gcode_s"), 1)),
     ("peak RSS MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
     ("G-code lines", lambda n, r: _k(r.get("gcode_lines"))),
     ("moves/s", lambda n, r: _f(r.get("moves_per_s"), 0)),
@@ -114,6 +118,14 @@ def render(groups):
     if models:
         out += ["## Whole plan (`benchmarks/pipeline.py`)", "", *_table(models), ""]
         out += _conditions(groups, ("plan", "terrain", "fine_map"))
+    free = _models(groups.get("free", {}).get("results", {}))
+    if free:
+        out += ["## Whole plan, free print direction (`benchmarks/pipeline.py --only free`)", "",
+                "Every model planned with `method: free` and its relief fitted to the material "
+                "(`hostd plan --fit`, also where a sidecar asks for a height); the simulation is "
+                "the thin shell, started flat with the curvature programmed through the layers.",
+                "", *_table(free), ""]
+        out += _conditions(groups, ("free",))
     layout = _models(groups.get("layout", {}).get("results", {}))
     if layout:
         out += ["## Layout methods side by side (`benchmarks/pipeline.py --only layout`)", "",

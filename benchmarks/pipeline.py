@@ -6,7 +6,8 @@ case's own. Targets are reported next to the measurements;
 nothing here asserts them.
 
     python benchmarks/pipeline.py                 # everything
-    python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain | fine_map
+    python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain |
+                                                  # fine_map | layout | free
 
 The plan group runs each model with the profile as shipped: the forward
 simulation settles the coarse sheet (``mesh.l_sim_mm: 2``) and then the full
@@ -70,16 +71,25 @@ PLAN = r"""
 from pipeline.profiles.profile import load_profile
 from hostd import planner
 path, outdir = sys.argv[1], sys.argv[2]
+method = sys.argv[3] if len(sys.argv) > 3 else None
+fit = len(sys.argv) > 4 and sys.argv[4] == "fit"
 prof = load_profile("generic-0.5mm")
 t = time.perf_counter()
-plan = planner.run(path, prof, outdir)
+plan = planner.run(path, prof, outdir, method=method, force_fit=fit)
 wall = time.perf_counter() - t
 r = plan.report
 ts = r["timing_s"]
 to_sim = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
 every = ts["total"] + ts.get("gcode", 0.0) + ts.get("texture", 0.0)
 g = r["gcode"]
+fl, tp, fit = r["flatten"], r["toolpath"], r.get("fit") or {}
 print(json.dumps({
+    "method": fl.get("method"), "invalid_area_fraction": fl.get("invalid_area_fraction"),
+    "flipped": fl.get("flipped"), "fit_scale": fit.get("applied_scale"),
+    "fit_max_height_mm": fit.get("max_height_mm"), "fit_s": ts.get("fit"),
+    "overlap": tp.get("overlap"), "direction_angle_deg": tp.get("direction_angle_deg"),
+    "toolpath_gcode_s": round(ts.get("toolpath", 0.0) + ts.get("gcode", 0.0), 3),
+    "link_moves_per_s": g.get("link_moves_per_s"),
     "input": r["input"], "longest_diameter_mm": round(r["heightfield"]["longest_diameter_mm"], 1),
     "working_shape": r["heightfield"].get("working_shape"),
     "triangles": r["mesh"]["triangles"], "timing_s": ts, "load_to_simulation_s": round(to_sim, 3),
@@ -103,7 +113,7 @@ SHAPE = r"""
 import numpy as np
 from pipeline.input import shapes
 name, out = sys.argv[1], sys.argv[2]
-hf = shapes.REFERENCE[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
+hf = {**shapes.REFERENCE, **shapes.SADDLES}[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
 np.save(out + "/" + name + ".npy", hf.z.astype(np.float32))
 open(out + "/" + name + ".yaml", "w").write("pixel_mm: %r\n" % hf.pixel_mm)
 print(json.dumps({"ok": True}))
@@ -227,6 +237,27 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
     return out
 
 
+FREE_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak", "terrain_tile",
+               "hyperbolic_paraboloid", "monkey_saddle")
+
+
+def bench_free(names=FREE_MODELS):
+    """The whole plan with the free print direction: the reference shapes, the two
+    saddles and the real terrain, each once (quality figures are deterministic), the
+    relief fitted to the material even where a sidecar asks for a height."""
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        inputs = []
+        for name in names:
+            _child(SHAPE, name, tmp)
+            inputs.append((name, Path(tmp) / (name + ".npy")))
+        if TERRAIN.is_dir():
+            inputs += [(png.stem, png) for png in sorted(TERRAIN.glob("*.png"))]
+        for name, path in inputs:
+            out[name] = {"methods": {"free": _child(PLAN, str(path), tmp + "/out", "free", "fit")}}
+    return out
+
+
 def bench_terrain():
     if not TERRAIN.is_dir():
         return {"skipped": "../shared/data/terrain not present"}
@@ -239,7 +270,7 @@ def bench_terrain():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map", "layout"])
+    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map", "layout", "free"])
     ap.add_argument("--models", help="comma-separated reference shapes for the plan group")
     ap.add_argument("--no-save", action="store_true",
                     help="print only; keep benchmarks/results and docs/figures.md as they are")
@@ -258,11 +289,13 @@ def main():
         result["fine_map"] = bench_fine_map()
     if args.only in (None, "layout"):
         result["layout"] = bench_layout()
+    if args.only in (None, "free"):
+        result["free"] = bench_free(**({"names": plan_kw["names"]} if plan_kw else {}))
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
     if not args.no_save:
         cond = figures.conditions()
-        for group in ("flatten", "plan", "terrain", "fine_map", "layout"):
+        for group in ("flatten", "plan", "terrain", "fine_map", "layout", "free"):
             if group in result:
                 figures.save(group, result[group], cond)
         figures.write()
