@@ -272,3 +272,33 @@ def starfish_like(diameter_mm=170.0, height_mm=30.0, arms=5, neck=0.6, pixel_mm=
     q = (r / rb) ** 2
     z = height_mm * (np.sqrt(np.maximum(2.0 - q, 0.0)) - 1.0) / (np.sqrt(2.0) - 1.0)
     return HeightField(np.where(q <= 1.0, z, np.nan), pixel_mm, source="starfish_like")
+
+
+def flat_sheet(nx=13, ny=7, size=(24.0, 12.0), jitter=0.0, seed=0):
+    """A flat, consistently oriented triangulation of a rectangle: (V (n, 3), faces)."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(0, size[0], nx), np.linspace(0, size[1], ny))
+    pts = np.c_[x.ravel(), y.ravel()]
+    inner = (pts[:, 0] > 0) & (pts[:, 0] < size[0]) & (pts[:, 1] > 0) & (pts[:, 1] < size[1])
+    pts[inner] += rng.uniform(-jitter, jitter, size=(inner.sum(), 2))
+    faces = Delaunay(pts).simplices
+    P = pts[faces]
+    cross = ((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+             - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    faces[cross < 0] = faces[cross < 0][:, [0, 2, 1]]
+    return np.c_[pts, np.zeros(len(pts))], faces
+
+
+def roll_curvature(P):
+    """Curvature (1/mm) of a strip rolled about an axis along its width: one circle
+    fitted to all its points ((n, 3) mm) in the plane across that axis."""
+    axis = np.linalg.svd(P - P.mean(axis=0))[2]
+    width = axis[np.argmax(np.abs(axis @ np.array([0.0, 1.0, 0.0])))]
+    u = np.cross(width, [0.0, 0.0, 1.0] if abs(width[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(width, u)
+    xz = np.c_[P @ u, P @ w]
+    A = np.c_[2 * xz, np.ones(len(xz))]
+    b = (xz ** 2).sum(axis=1)
+    cx, cz, c = np.linalg.lstsq(A, b, rcond=None)[0]
+    return 1.0 / np.sqrt(c + cx ** 2 + cz ** 2)

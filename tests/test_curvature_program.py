@@ -5,6 +5,12 @@ import pytest
 
 from pipeline.input import shapes
 from pipeline.layout import curvature
+from pipeline.mechanics.pd import minimize_lbfgs
+from pipeline.mechanics.shell import ShellSystem
+from pipeline.profiles.profile import load_profile
+from pipeline.simulation.shell import directional_rest
+
+from meshes import flat_sheet, roll_curvature
 
 
 def test_a_spherical_cap_has_one_over_its_radius_along_every_direction():
@@ -43,11 +49,46 @@ def test_program_stays_within_the_shrink_range_and_says_where_it_was_cut():
     assert prog.kappa[0] == pytest.approx(0.05) and not prog.limited[0]
     assert prog.kappa[1] == pytest.approx(k_max[1]) and prog.limited[1]
     assert np.allclose(prog.delta_sigma, prog.kappa * 1.5 / curvature.BILAYER_C)
-    # The shared hinge (the diagonal) bends by both triangles' curvature across it.
-    assert prog.theta_rest.shape == (1,) and prog.theta_rest[0] > 0
+    # Bent along x, the square's four corners stay at one height: its diagonal does not
+    # fold. Bent across the diagonal, the diagonal folds by both triangles' curvature.
+    assert prog.theta_rest.shape == (1,) and prog.theta_rest[0] == pytest.approx(0.0, abs=1e-12)
+    across = np.tile([np.sqrt(0.5), np.sqrt(0.5)], (2, 1))
+    prog = curvature.program([0.01, 0.01], faces, xy, across, [0.1, 0.1], [1.5, 1.5], 0.0, 0.34)
+    # On the shrunk sheet each far corner sits s = 0.9 * 5 sqrt(2) from the diagonal and
+    # rises kappa s^2 / 2: each triangle turns by kappa s / 2.
+    assert prog.theta_rest[0] == pytest.approx(0.01 * 0.9 * 5 * np.sqrt(2))
 
 
 def test_the_isoline_direction_runs_across_the_height_gradient():
     xy = np.array([[0, 0], [10, 0], [0, 10.0]])
     d = curvature.isoline_directions(xy, np.array([[0, 1, 2]]), np.array([0.0, 0.0, 5.0]))
     assert np.allclose(np.abs(d[0]), [1.0, 0.0])
+
+
+@pytest.mark.parametrize("bottom_mm,top_mm", [(0.25, 0.40), (0.30, 0.30)])
+def test_a_strip_printed_with_a_thickness_difference_bends_as_the_bilayer_formula_says(
+        bottom_mm, top_mm):
+    """Three layers at ``bottom_mm`` under three at ``top_mm``, paths along the strip:
+    it rolls to ``c * (sigma_bottom - sigma_top) / h``; with equal layers it stays flat."""
+    profile = load_profile("generic-0.5mm")
+    lim, shrink = profile.shrink_limits, profile.shrink_curve
+    s_bottom, s_top = (float(s) for s in shrink.sigma(np.array([bottom_mm, top_mm])))
+    h = 3 * (bottom_mm + top_mm)
+    kappa = curvature.BILAYER_C * (s_bottom - s_top) / h
+    V, faces = flat_sheet(nx=25, ny=5, size=(40.0, 6.0), jitter=0.2, seed=1)
+    xy = V[:, :2]
+    d = np.tile([1.0, 0.0], (len(faces), 1))
+    sigma = np.full(len(faces), 0.5 * (s_bottom + s_top))
+    prog = curvature.program(np.full(len(faces), kappa), faces, xy, d, sigma,
+                             np.full(len(faces), h), lim.s_min, lim.s_max)
+    assert not prog.limited.any()
+    S = ShellSystem(faces, len(V), directional_rest(xy, faces, d, sigma), h,
+                    theta_rest=prog.theta_rest)
+    X = V.T.copy()
+    X[2] += 1e-3 * np.sin(V[:, 0])                    # a nudge off the flat saddle point
+    X, _, _, converged = minimize_lbfgs(S, X, 2000, 1e-7)
+    assert converged
+    if kappa:
+        assert roll_curvature(X.T) == pytest.approx(kappa, rel=0.05)
+    else:
+        assert np.ptp(X[2]) < 1e-3

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from scipy.spatial import Delaunay
 
 from pipeline.layout.curvature import isoline_directions
 from pipeline.layout.isoline import flatten
@@ -13,22 +12,7 @@ from pipeline.mechanics.shell import (ShellSystem, dihedral, face_lengths, min_a
 from pipeline.simulation.forward import simulate
 from pipeline.simulation.shell import directional_rest, isoline_rest, simulate_shell
 
-from meshes import longest_diameter, reference_mesh
-
-
-def _sheet(nx=13, ny=7, size=(24.0, 12.0), jitter=0.0, seed=0):
-    """A flat, consistently oriented triangulation of a rectangle: (V (n, 3), faces)."""
-    rng = np.random.default_rng(seed)
-    x, y = np.meshgrid(np.linspace(0, size[0], nx), np.linspace(0, size[1], ny))
-    pts = np.c_[x.ravel(), y.ravel()]
-    inner = (pts[:, 0] > 0) & (pts[:, 0] < size[0]) & (pts[:, 1] > 0) & (pts[:, 1] < size[1])
-    pts[inner] += rng.uniform(-jitter, jitter, size=(inner.sum(), 2))
-    faces = Delaunay(pts).simplices
-    P = pts[faces]
-    cross = ((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
-             - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
-    faces[cross < 0] = faces[cross < 0][:, [0, 2, 1]]
-    return np.c_[pts, np.zeros(len(pts))], faces
+from meshes import flat_sheet, longest_diameter, reference_mesh, roll_curvature
 
 
 def _numeric_gradient(f, X, h=1e-6):
@@ -71,7 +55,7 @@ def test_nearest_orthonormal_is_the_polar_factor():
 
 
 def test_energy_gradient_is_exact():
-    V, faces = _sheet(jitter=0.4)
+    V, faces = flat_sheet(jitter=0.4)
     rng = np.random.default_rng(5)
     rest = face_lengths(V, faces) * rng.uniform(0.7, 1.0, size=(len(faces), 1))
     theta = rng.normal(scale=0.1, size=len(topology(faces).hinges))
@@ -89,7 +73,7 @@ def test_energy_gradient_is_exact():
 
 
 def test_a_sheet_at_its_rest_shape_has_no_energy_and_no_force():
-    V, faces = _sheet(jitter=0.4)
+    V, faces = flat_sheet(jitter=0.4)
     S = ShellSystem(faces, len(V), face_lengths(V, faces), 1.5)
     g, E = S.project(V.T.copy())
     assert E == pytest.approx(0.0, abs=1e-18)
@@ -97,7 +81,7 @@ def test_a_sheet_at_its_rest_shape_has_no_energy_and_no_force():
 
 
 def test_bending_grows_with_the_cube_of_thickness_and_stretch_with_thickness():
-    V, faces = _sheet()
+    V, faces = flat_sheet()
     bent = V.copy()
     bent[:, 2] = 0.02 * (bent[:, 0] - 12.0) ** 2      # a developable bend: no stretch to first order
     stretched = V * np.array([1.05, 1.0, 1.0])        # 5 % in-plane stretch, no bend
@@ -111,7 +95,7 @@ def test_bending_grows_with_the_cube_of_thickness_and_stretch_with_thickness():
 
 
 def test_slivers_carry_no_bending():
-    V, faces = _sheet()
+    V, faces = flat_sheet()
     rest = face_lengths(V, faces)
     sliver = np.array([[1.0, 1.0, 1.9999]])           # corners of 0.6 degrees
     assert min_angle_deg(sliver)[0] < 1.0 < min_angle_deg(rest).min()
@@ -126,7 +110,7 @@ def test_slivers_carry_no_bending():
 def test_a_strip_settles_to_its_programmed_curvature(kappa):
     """A strip whose hinges rest at the dihedral angles of a cylinder of curvature kappa
     rolls up to that cylinder from flat; with no programmed curvature it stays flat."""
-    V, faces = _sheet(nx=25, ny=5, size=(40.0, 6.0), jitter=0.2, seed=1)
+    V, faces = flat_sheet(nx=25, ny=5, size=(40.0, 6.0), jitter=0.2, seed=1)
     hinges = topology(faces).hinges
     if kappa:
         phi = V[:, 0] * kappa
@@ -140,19 +124,7 @@ def test_a_strip_settles_to_its_programmed_curvature(kappa):
     X, _, _, converged = minimize_lbfgs(S, X, 2000, 1e-7)
     P = X.T
     assert converged
-    # The strip rolls about an axis along its width: fit one circle to all its points
-    # in the plane across that axis.
-    axis = np.linalg.svd(P - P.mean(axis=0))[2]
-    width = axis[np.argmax(np.abs(axis @ np.array([0.0, 1.0, 0.0])))]
-    u = np.cross(width, [0.0, 0.0, 1.0] if abs(width[2]) < 0.9 else [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = np.cross(width, u)
-    xz = np.c_[P @ u, P @ w]
-    A = np.c_[2 * xz, np.ones(len(xz))]
-    b = (xz ** 2).sum(axis=1)
-    cx, cz, c = np.linalg.lstsq(A, b, rcond=None)[0]
-    radius = np.sqrt(c + cx ** 2 + cz ** 2)
-    fitted = 1.0 / radius
+    fitted = roll_curvature(P)
     if kappa:
         assert fitted == pytest.approx(kappa, rel=0.05)
     else:

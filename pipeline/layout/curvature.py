@@ -147,30 +147,36 @@ def program(kappa_target, faces, xy, direction, sigma, thickness_mm, s_min, s_ma
     kappa = np.asarray(kappa_target, dtype=float)
     limited = np.abs(kappa) > k_max
     kappa = np.clip(kappa, -k_max, k_max)
-    a = _hinge_response(xy, faces, top.hinges, top.hinge_faces, direction)
+    a = _hinge_response(xy, faces, top.hinges, top.hinge_faces, direction, sigma)
     theta_rest = (a * kappa[top.hinge_faces]).sum(axis=1)
     return CurvatureProgram(kappa=kappa, delta_sigma=kappa * h / c, limited=limited,
                             theta_rest=theta_rest)
 
 
-def _hinge_response(xy, faces, hinges, hinge_faces, direction):
+def _hinge_response(xy, faces, hinges, hinge_faces, direction, sigma):
     """Dihedral angle (rad) each hinge takes per unit curvature (1/mm) of each of its
-    two triangles along their print direction: (h, 2).
+    two triangles along their print direction, once shrunk by its ``sigma``: (h, 2).
 
-    A curvature kappa along d bends a hinge whose edge has in-plane normal nu by
-    ``kappa (d . nu)^2`` per mm across it; across the hinge lie half of each
-    triangle's height over the edge, ``2 A / (3 |e|)`` from each centroid.
+    Each triangle, shrunk along ``d``, is lifted onto the cylinder
+    ``z = kappa (d . (p - m))^2 / 2`` about the hinge's midpoint ``m``: both ends of the
+    edge rise alike, so the edge stays level and the triangle turns about it by the rise
+    of its far corner over its height. Exact for a sheet bent to one curvature, whatever
+    way the mesh runs (a centroid-to-centroid estimate is a third short on a grid).
     """
     xy = np.asarray(xy, dtype=float)
-    e = xy[hinges[:, 1]] - xy[hinges[:, 0]]
-    length = np.maximum(np.linalg.norm(e, axis=1), 1e-12)
-    nu = np.stack([-e[:, 1], e[:, 0]], axis=1) / length[:, None]
-    P = xy[faces]
-    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
-                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+    d = np.asarray(direction, dtype=float)
+    a, b = hinges[:, 0], hinges[:, 1]
+    half_flat = 0.5 * (xy[b] - xy[a])
+    mid = 0.5 * (xy[a] + xy[b])
     out = np.empty((len(hinges), 2))
     for side in range(2):
         f = hinge_faces[:, side]
-        cos = np.einsum("hc,hc->h", np.asarray(direction, dtype=float)[f], nu)
-        out[:, side] = cos * cos * 2.0 * area[f] / (3.0 * length)
+        far = xy[faces[f].sum(axis=1) - a - b] - mid
+        half, far = (v - (sigma[f] * np.einsum("hc,hc->h", d[f], v))[:, None] * d[f]
+                     for v in (half_flat, far))
+        length = np.maximum(2.0 * np.linalg.norm(half, axis=1), 1e-12)
+        height = np.abs(half[:, 0] * far[:, 1] - half[:, 1] * far[:, 0]) * 2.0 / length
+        rise = 0.5 * (np.einsum("hc,hc->h", d[f], far) ** 2
+                      - np.einsum("hc,hc->h", d[f], half) ** 2)
+        out[:, side] = rise / np.maximum(height, 1e-12)
     return out
