@@ -15,6 +15,11 @@ from scipy.spatial import Delaunay, cKDTree
 import contourpy
 
 from pipeline.input import shapes
+from pipeline.layout import curvature
+from pipeline.layout.free import flatten_free
+from pipeline.meshing.grid import build_grid_mesh
+from pipeline.profiles.profile import load_profile
+from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
 from pipeline.geometry import Mesh, edge_index, signed_areas_2d, unique_edges
 
 
@@ -302,3 +307,31 @@ def roll_curvature(P):
     b = (xz ** 2).sum(axis=1)
     cx, cz, c = np.linalg.lstsq(A, b, rcond=None)[0]
     return 1.0 / np.sqrt(c + cx ** 2 + cz ** 2)
+
+
+# The free method's sheet, for the simulation's tests: the shipped profile's materials.
+SHEET_PROFILE = load_profile("generic-0.5mm")
+LIMITS = SHEET_PROFILE.shrink_limits
+
+
+def sheet_thickness(sigma):
+    """Printed thickness (mm) of triangles of shrink ``sigma`` with the shipped profile."""
+    return thickness_for(sigma, SHEET_PROFILE.shrink_curve, SHEET_PROFILE.layers,
+                         SHEET_PROFILE.thickness_mm.min, SHEET_PROFILE.thickness_mm.max)
+
+
+def free_sheet(hf, spacing_mm, programmed=True):
+    """The free method's sheet on a ``spacing_mm`` grid as the plan simulates it:
+    started flat, the curvature programmed through the layers (or not). SimResult."""
+    mesh = build_grid_mesh(hf, spacing_mm)
+    flat = flatten_free(mesh, LIMITS.s_min, LIMITS.s_max, iterations=200)
+    sigma = np.clip(flat.sigma, LIMITS.s_min, LIMITS.s_max)
+    thick = sheet_thickness(sigma)
+    theta = None
+    if programmed:
+        theta = curvature.program(curvature.along_print_direction(hf, mesh, flat), mesh.faces,
+                                  flat.xy, flat.direction, sigma, thick, LIMITS.s_min,
+                                  LIMITS.s_max).theta_rest
+    return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
+                          directional_rest(flat.xy, mesh.faces, flat.direction, sigma), thick,
+                          theta_rest=theta, pop=0.0)
