@@ -106,7 +106,10 @@ def write_outputs(st, plan):
     disp = sim.displacement_mm
     vmax = max(float(np.ceil(disp.max())), 1.0)
     colors = figure.colormap(disp, 0.0, vmax, name="displacement")
-    plyio.write_ply(st.path(out["simulated.ply"]), sim.vertices, mesh.faces,
+    # The sheet may have been simulated on a grid of its own rather than the plan's mesh.
+    sim_faces = mesh.faces if sim.faces is None else sim.faces
+    target = mesh.vertices if sim.target is None else sim.target
+    plyio.write_ply(st.path(out["simulated.ply"]), sim.vertices, sim_faces,
                     vertex_colors=colors)
     if hasattr(flat, "direction"):
         pts, ticks, sig = render.direction_ticks(flat.xy, mesh.faces, flat.direction, flat.sigma)
@@ -118,7 +121,7 @@ def write_outputs(st, plan):
             flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
             title="%s: flat layout, shrink per printing edge" % name))
     st.write_image(out["preview.png"], render.preview_image(
-        mesh.vertices, mesh.faces, sim.vertices, disp,
+        target, sim_faces, sim.vertices, disp,
         title=preview_title(plan)))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))

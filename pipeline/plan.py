@@ -29,6 +29,7 @@ from pipeline.meshing.isoline import build_mesh
 from pipeline.paths.isoline import plan_toolpaths
 from pipeline.paths.stripes import stripe_toolpaths
 from pipeline.simulation.forward import simulate
+from pipeline.simulation.resample import onto_grid
 from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
 
 
@@ -304,12 +305,22 @@ def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
     result.problems += layout_problems(flat, result.fold_fraction, lim,
                                        Path(path).stem + ".yaml", opts["smooth_mm"])
 
-    t = stage("simulate", "forward simulation of the flat sheet")
+    t = stage("simulate", "forward simulation of the flat sheet (%s)"
+              % ("thin shell" if fp.simulation == "shell" else "the paper's"))
     # The printed sheet can only shrink within the material's range (the G-code clamps
     # the thickness the same way), so the simulation shrinks by the clamped sigma.
-    sim = simulate(mesh, flat, weights={k: weights[k] for k in
-                                        ("bridge", "printing", "bending", "shear")},
-                   s_min=lim.s_min, s_max=lim.s_max)
+    if fp.simulation == "shell":
+        sheet = onto_grid(hf, mesh, flat.xy, mp.grid_mm)
+        sigma = np.clip(sheet.sigma, lim.s_min, lim.s_max)
+        thick = thickness_for(sigma, profile.shrink_curve, profile.layers,
+                              profile.thickness_mm.min, profile.thickness_mm.max)
+        sim = simulate_shell(sheet.vertices, sheet.faces, sheet.xy,
+                             directional_rest(sheet.xy, sheet.faces, sheet.direction, sigma),
+                             thick, clamped=int(np.count_nonzero(sigma != sheet.sigma)))
+    else:
+        sim = simulate(mesh, flat, weights={k: weights[k] for k in
+                                            ("bridge", "printing", "bending", "shear")},
+                       s_min=lim.s_min, s_max=lim.s_max)
     result.sim = sim
     result.problems += simulation_problems(sim)
     timing["simulate"] = time.perf_counter() - t

@@ -121,6 +121,9 @@ class FlattenParams:
     method: str = _str("isoline", choices=("isoline", "free"))
     iterations: int = _num(50, integer=True)
     free_iterations: int = _num(200, integer=True)
+    # How the plan checks an isoline layout: the paper's projective dynamics, or the
+    # thin shell the free method uses (printed thickness, converges under refinement).
+    simulation: str = _str("paper", choices=("paper", "shell"))
     w_bridge: float = _num(1.0, strict=False)
     w_printing: float = _num(1.0, strict=False)
     w_bending: float = _num(0.025, strict=False)

@@ -67,6 +67,8 @@ class SimResult:
         Both stages' energies, one list (each stage starts its own).
     timing_s : dict
         Seconds: ``coarse``, ``full`` (the stages run) and ``total``.
+    faces, target : (m, 3) int and (n, 3) mm, the sheet's own triangles and target
+        where it was simulated on another mesh than the plan's (else None)
     """
 
     vertices: np.ndarray
@@ -81,6 +83,8 @@ class SimResult:
     coarse_iterations: int = 0
     energy_history: list = field(default_factory=list)
     timing_s: dict = field(default_factory=dict)
+    faces: np.ndarray = None
+    target: np.ndarray = None
 
     def report(self):
         """The ``simulation`` section of ``NAME.report.json``."""

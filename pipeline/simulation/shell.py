@@ -129,4 +129,4 @@ def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None,
                      max_displacement_mm=float(disp.max()), iterations=it,
                      converged=converged, mirrored=mirrored, clamped_edges=int(clamped),
                      sheet_vertices=len(V), coarse_iterations=0, energy_history=energy,
-                     timing_s={"full": total, "total": total})
+                     timing_s={"full": total, "total": total}, faces=faces, target=V)
