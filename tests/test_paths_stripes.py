@@ -3,8 +3,10 @@ each segment's shrink from the triangle it crosses."""
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from scipy.spatial import Delaunay
 
+from pipeline.paths import stripes
 from pipeline.paths.stripes import plan_stripes, stripe_toolpaths
 
 WIDTH = 0.5
@@ -78,3 +80,26 @@ def test_each_segment_carries_the_shrink_of_its_triangle():
         q = np.vstack([p, p[:1]]) if closed else p
         f = tri.find_simplex((q[1:] + q[:-1]) / 2)
         assert np.all(f >= 0) and np.array_equal(sg, sigma[f])
+
+
+def test_the_stripe_phase_is_the_same_every_run():
+    """A fixed start, not a random one: a plan run twice gives the same paths."""
+    xy, faces = _disk()
+    d = _field("two_half", xy[faces].mean(axis=1))
+    normal = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    first, _ = stripes.stripe_phase(xy, faces, normal, 0.48)
+    again, _ = stripes.stripe_phase(xy, faces, normal, 0.48)
+    assert np.array_equal(first, again)
+
+
+def test_the_smallest_eigenvector_of_a_nearly_degenerate_pair_is_found():
+    rng = np.random.default_rng(3)
+    n = 60
+    Q = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    vals = np.r_[1.0, 1.0005, np.linspace(3.0, 50.0, n - 2)]
+    mass = rng.uniform(0.5, 2.0, n)
+    S = np.diag(np.sqrt(mass))
+    A = S @ Q @ np.diag(vals) @ Q.T @ S            # A x = lambda M x has these eigenvalues
+    x = stripes.smallest_eigenvector(sp.csr_matrix(A), mass, -1e-3)
+    rayleigh = float(x @ A @ x) / float(x @ (mass * x))
+    assert rayleigh == pytest.approx(1.0, rel=2e-3)

@@ -13,7 +13,7 @@ triangle holds no path, and paths end there.
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import eigsh
+from scipy.sparse.linalg import splu
 
 from pipeline.geometry import signed_areas_2d, unique_edges
 
@@ -60,11 +60,32 @@ def stripe_phase(xy, faces, normal, width_mm):
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(2 * n, 2 * n))
     mass = np.repeat(_vertex_areas(xy, faces), 2)
-    B = sp.diags(mass)
-    shift = -1e-3 * float(diag.mean()) / float(mass.mean())
-    _, vec = eigsh(A, k=1, M=B, sigma=shift, which="LM")
-    psi = vec[0::2, 0] + 1j * vec[1::2, 0]
+    vec = smallest_eigenvector(A, mass, -1e-3 * float(diag.mean()) / float(mass.mean()))
+    psi = vec[0::2] + 1j * vec[1::2]
     return np.angle(psi), X
+
+
+def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
+    """The eigenvector of ``A x = lambda diag(mass) x`` with the smallest eigenvalue, by
+    inverse iteration from a fixed start on one factorisation of ``A - shift M``.
+
+    Where the two smallest eigenvalues nearly coincide (a field with several singular
+    points) any vector of their span is an equally good stripe pattern; ARPACK, asked
+    for one of the pair, started from a random vector and at times iterated for many
+    minutes. Here the answer is the same every run and the iterations are capped.
+    """
+    lu = splu((A - shift * sp.diags(mass)).tocsc())
+    x = np.random.default_rng(0).standard_normal(A.shape[0])
+    x /= np.sqrt(np.dot(x, mass * x))
+    for _ in range(max_iterations):
+        y = lu.solve(mass * x)
+        y /= np.sqrt(np.dot(y, mass * y))
+        lam = float(np.dot(y, A @ y))
+        r = A @ y - lam * mass * y
+        x = y
+        if np.sqrt(np.dot(r, r / mass)) <= tol * max(abs(lam), 1e-12):
+            break
+    return x
 
 
 def corner_phases(xy, faces, phase, X, width_mm):
