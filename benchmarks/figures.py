@@ -33,6 +33,8 @@ PLAN_COLUMNS = [
     ("fit scale", lambda n, r: _f(r.get("fit_scale"), 2)),
     ("sim. displacement", lambda n, r: _disp(r)),
     ("at rest", lambda n, r: _rest(r)),
+    ("arm tips mm", lambda n, r: None if not r.get("arm_tips_mm") else
+     "max %.1f" % max(r["arm_tips_mm"])),
     ("traces", lambda n, r: r.get("traces")),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
@@ -118,14 +120,16 @@ def render(groups):
     if models:
         out += ["## Whole plan (`benchmarks/pipeline.py`)", "", *_table(models), ""]
         out += _conditions(groups, ("plan", "terrain", "fine_map"))
-    free = _models(groups.get("free", {}).get("results", {}))
-    if free:
-        out += ["## Whole plan, free print direction (`benchmarks/pipeline.py --only free`)", "",
-                "Every model planned with `method: free` and its relief fitted to the material "
-                "(`hostd plan --fit`, also where a sidecar asks for a height); the simulation is "
-                "the thin shell, started flat with the curvature programmed through the layers.",
-                "", *_table(free), ""]
-        out += _conditions(groups, ("free",))
+    both = _models(groups.get("methods", {}).get("results", {}))
+    if both:
+        out += ["## Both layout methods, one simulation (`benchmarks/pipeline.py --only methods`)",
+                "", "Whole plans, each checked by the thin-shell simulation (printed thickness; "
+                "its answer changes by under 10 % when the mesh is halved). `free`: the relief "
+                "fitted to the material (`hostd plan --fit`, also where a sidecar asks for a "
+                "height), started flat with the curvature programmed through the layers. "
+                "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
+                "(`flatten.simulation: shell`), started from a bump.", "", *_table(both), ""]
+        out += _conditions(groups, ("methods",))
     layout = _models(groups.get("layout", {}).get("results", {}))
     if layout:
         out += ["## Layout methods side by side (`benchmarks/pipeline.py --only layout`)", "",

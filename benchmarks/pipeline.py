@@ -7,7 +7,7 @@ nothing here asserts them.
 
     python benchmarks/pipeline.py                 # everything
     python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain |
-                                                  # fine_map | layout | free
+                                                  # fine_map | layout | methods
 
 The plan group runs each model with the profile as shipped: the forward
 simulation settles the coarse sheet (``mesh.l_sim_mm: 2``) and then the full
@@ -72,8 +72,11 @@ from pipeline.profiles.profile import load_profile
 from hostd import planner
 path, outdir = sys.argv[1], sys.argv[2]
 method = sys.argv[3] if len(sys.argv) > 3 else None
-fit = len(sys.argv) > 4 and sys.argv[4] == "fit"
+fit = "fit" in sys.argv[4:]
 prof = load_profile("generic-0.5mm")
+if "shell" in sys.argv[4:]:
+    import dataclasses
+    prof = dataclasses.replace(prof, flatten=dataclasses.replace(prof.flatten, simulation="shell"))
 t = time.perf_counter()
 plan = planner.run(path, prof, outdir, method=method, force_fit=fit)
 wall = time.perf_counter() - t
@@ -83,13 +86,24 @@ to_sim = sum(ts[k] for k in ("load", "validate", "mesh", "flatten", "simulate"))
 every = ts["total"] + ts.get("gcode", 0.0) + ts.get("texture", 0.0)
 g = r["gcode"]
 fl, tp, fit = r["flatten"], r["toolpath"], r.get("fit") or {}
+tips = None
+if r["input"].startswith("starfish"):
+    # The arms' tips: the target point farthest from the middle in each fifth of a turn.
+    import numpy as np
+    sim = plan.sim
+    V = np.asarray(plan.mesh.vertices if sim.target is None else sim.target)
+    c = V[:, :2] - V[:, :2].mean(axis=0)
+    r2 = np.hypot(c[:, 0], c[:, 1])
+    sector = ((np.arctan2(c[:, 1], c[:, 0]) + np.pi) / (2 * np.pi) * 5).astype(int) % 5
+    tips = [round(float(sim.displacement_mm[np.flatnonzero(sector == k)[
+        np.argmax(r2[sector == k])]]), 2) for k in range(5)]
 print(json.dumps({
     "method": fl.get("method"), "invalid_area_fraction": fl.get("invalid_area_fraction"),
     "flipped": fl.get("flipped"), "fit_scale": fit.get("applied_scale"),
     "fit_max_height_mm": fit.get("max_height_mm"), "fit_s": ts.get("fit"),
     "overlap": tp.get("overlap"), "direction_angle_deg": tp.get("direction_angle_deg"),
     "toolpath_gcode_s": round(ts.get("toolpath", 0.0) + ts.get("gcode", 0.0), 3),
-    "link_moves_per_s": g.get("link_moves_per_s"),
+    "link_moves_per_s": g.get("link_moves_per_s"), "arm_tips_mm": tips,
     "input": r["input"], "longest_diameter_mm": round(r["heightfield"]["longest_diameter_mm"], 1),
     "working_shape": r["heightfield"].get("working_shape"),
     "triangles": r["mesh"]["triangles"], "timing_s": ts, "load_to_simulation_s": round(to_sim, 3),
@@ -237,14 +251,15 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
     return out
 
 
-FREE_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak", "terrain_tile",
+METHOD_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak", "terrain_tile",
                "hyperbolic_paraboloid", "monkey_saddle")
 
 
-def bench_free(names=FREE_MODELS):
-    """The whole plan with the free print direction: the reference shapes, the two
-    saddles and the real terrain, each once (quality figures are deterministic), the
-    relief fitted to the material even where a sidecar asks for a height."""
+def bench_methods(names=METHOD_MODELS):
+    """Both layout methods, whole plans checked by the same thin-shell simulation: the
+    reference shapes, the two saddles and the real terrain, each once (the quality
+    figures are deterministic). The free method's relief is fitted to the material,
+    even where a sidecar asks for a height; the isoline method plans it as given."""
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         inputs = []
@@ -254,7 +269,9 @@ def bench_free(names=FREE_MODELS):
         if TERRAIN.is_dir():
             inputs += [(png.stem, png) for png in sorted(TERRAIN.glob("*.png"))]
         for name, path in inputs:
-            out[name] = {"methods": {"free": _child(PLAN, str(path), tmp + "/out", "free", "fit")}}
+            out[name] = {"methods": {
+                "free": _child(PLAN, str(path), tmp + "/out", "free", "fit"),
+                "isoline": _child(PLAN, str(path), tmp + "/out", "isoline", "shell")}}
     return out
 
 
@@ -270,7 +287,7 @@ def bench_terrain():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map", "layout", "free"])
+    ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map", "layout", "methods"])
     ap.add_argument("--models", help="comma-separated reference shapes for the plan group")
     ap.add_argument("--no-save", action="store_true",
                     help="print only; keep benchmarks/results and docs/figures.md as they are")
@@ -289,13 +306,13 @@ def main():
         result["fine_map"] = bench_fine_map()
     if args.only in (None, "layout"):
         result["layout"] = bench_layout()
-    if args.only in (None, "free"):
-        result["free"] = bench_free(**({"names": plan_kw["names"]} if plan_kw else {}))
+    if args.only in (None, "methods"):
+        result["methods"] = bench_methods(**({"names": plan_kw["names"]} if plan_kw else {}))
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
     if not args.no_save:
         cond = figures.conditions()
-        for group in ("flatten", "plan", "terrain", "fine_map", "layout", "free"):
+        for group in ("flatten", "plan", "terrain", "fine_map", "layout", "methods"):
             if group in result:
                 figures.save(group, result[group], cond)
         figures.write()
