@@ -29,6 +29,7 @@ from pipeline.meshing.isoline import build_mesh
 from pipeline.paths.isoline import plan_toolpaths
 from pipeline.paths.stripes import stripe_toolpaths
 from pipeline.simulation.forward import simulate
+from pipeline.simulation import inverted
 from pipeline.simulation.resample import onto_grid
 from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
 
@@ -50,6 +51,7 @@ class Plan:
     simplified: dict = field(default_factory=dict)
     curvature: object = None
     fit: object = None
+    inverted: dict = None
     problems: list = field(default_factory=list)
     fold_fraction: float = 0.0
     report: dict = field(default_factory=dict)
@@ -232,6 +234,8 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
         _refuse_too_high(result, hf, profile, sidecar, opts, timing)
     else:
         _isoline_sheet(result, hf, profile, path, stage, timing, opts)
+    result.inverted = inverted.settled_inverted(result.sim, result.mesh)
+    result.problems += inverted.problems(result.inverted, path.stem)
     timing["total"] = time.perf_counter() - t_all
     result.report = _report(path, profile, result, vrep, srep, timing)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
@@ -481,7 +485,8 @@ def _report(path, profile, p, vrep, srep, timing):
         "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])],
                         fold_area_fraction=p.fold_fraction),
         "simulation": dict(sim.report(), mean_displacement_fraction=float(
-            sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9))),
+            sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
+            **({"inverted": inverted.report(p.inverted)} if p.inverted else {})),
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         **({"curvature": p.curvature.report()} if p.curvature is not None else {}),

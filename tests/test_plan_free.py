@@ -35,6 +35,7 @@ def test_the_free_method_plans_a_saddle_end_to_end(saddle_plan):
     # The curvature program is printed: the lower layers of a rising region are thinner.
     assert plan.curvature is not None and np.abs(plan.curvature.delta_sigma).max() > 0
     assert "curvature" in r and 0 <= r["curvature"]["limited_fraction"] <= 1
+    assert set(r["simulation"]["inverted"]) == {"regions", "area_fraction", "largest_mm2"}
     for name in ("stress", "toolpath", "preview", "input"):
         assert (out / ("saddle.%s.png" % name)).exists()
 
