@@ -4,6 +4,7 @@ refused with the sidecar line that would form when somebody did, and kept when i
 import dataclasses
 
 import numpy as np
+import pytest
 
 from hostd import planner
 from pipeline.geometry import HeightField
@@ -74,3 +75,19 @@ def test_a_relief_that_forms_is_left_as_it_is(tmp_path):
     plan = planner.run(_write(tmp_path, _cone(12.0), ""), FREE, tmp_path / "out")
     assert plan.report["fit"]["applied_scale"] == 1.0
     assert "fit.lowered" not in [p["code"] for p in plan.problems]
+
+
+@pytest.mark.parametrize("power,solves", [(1, 4), (4, 8)])
+def test_false_position_closes_in_on_a_smooth_area(power, solves):
+    """An invalid-area curve crossing 2 % at 0.5: the bracket 0.1 .. 1 narrows to within
+    3 % in ``solves`` solves (bisection: six). A gentle curve, as real terrain's, takes
+    fewer; a steep one (a cone's flank reaching the limit all at once) a few more."""
+    from pipeline.layout.fit import _close_in
+    tried = [(0.1, 0.0, 0), (1.0, 0.02 * 2 ** power, 0)]
+
+    def ok(scale, spacing, iterations):
+        area = 0.02 * (scale / 0.5) ** power
+        tried.append((scale, area, 0))
+        return area <= 0.02
+    a, b = _close_in(ok, tried, 0.1, 1.0, 0.02, 10, 1.0, 100)
+    assert a <= 0.5 < b and b - a < 0.03 * b and len(tried) - 2 <= solves

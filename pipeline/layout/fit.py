@@ -75,7 +75,7 @@ def slope_bound(hf, s_max, share=0.98):
 
 
 def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
-               iterations=100, steps=5, fine_mm=1.0, fine_steps=4, fine_iterations=200):
+               iterations=100, steps=3, fine_mm=1.0, fine_steps=6, fine_iterations=200):
     """The largest relief scale (<= 1) at which ``hf`` forms with the free layout.
 
     hf : validated HeightField; grid_mm : the search's mesh spacing (default: an 80th of
@@ -110,27 +110,43 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
             lo = guess
             break
         hi, guess = guess, guess * 0.6
-    for _ in range(steps if lo > 0 else 0):
-        mid = 0.5 * (lo + hi)
-        if ok(mid):
-            lo = mid
-        else:
-            hi = mid
+    if lo > 0:
+        lo, hi = _close_in(ok, tried, lo, hi, target, steps, grid, iterations)
     if lo > 0 and fine_steps:
-        # The coarse mesh errs on the safe side: look above its answer on the fine one.
+        # The coarse mesh errs on the safe side: look above its answer on the plan's own.
         top = min(1.0, hi * 1.3)
         if ok(top, fine_mm, fine_iterations):
             lo = top
         else:
-            hi = top
-            for _ in range(fine_steps):
-                mid = 0.5 * (lo + hi)
-                if ok(mid, fine_mm, fine_iterations):
-                    lo = mid
-                else:
-                    hi = mid
+            lo, hi = _close_in(ok, tried, lo, top, target, fine_steps - 1, fine_mm,
+                               fine_iterations, area_a=0.0)
     reason = ("slopes steeper than the material can form (at most %.0f degrees for a shrink "
               "of %.0f %%)" % (np.degrees(np.arccos(1.0 - s_max)), 100 * s_max)
               if lo > 0 else "no relief down to 2 % of the given one forms")
     return Fit(relief, relief * lo, float(lo), smooth_mm, reason, tried,
                time.perf_counter() - t0)
+
+
+def _close_in(ok, tried, a, b, target, steps, spacing, iterations, area_a=None):
+    """Narrow the bracket ``a`` (forms) .. ``b`` (does not) by false position on the
+    invalid area, which grows smoothly with the relief (the Illinois variant, so neither
+    end sticks): a few solves land within a few per cent where bisection needs twice as
+    many. An end's area is its last solve's at that scale, unless ``area_a`` is given
+    (a bracket whose lower end was solved on another mesh). Returns the bracket."""
+    def area(scale):
+        return next((ar for sc, ar, _ in reversed(tried) if sc == scale), target)
+    fa = (area(a) if area_a is None else area_a) - target
+    fb = area(b) - target
+    fa, fb, side = min(fa, 0.0), max(fb, 1e-6), 0
+    for _ in range(steps):
+        if b - a < 0.03 * b:
+            break
+        w = -fa / max(fb - fa, 1e-12)
+        x = a + (b - a) * min(max(w, 0.1), 0.9)
+        if ok(x, spacing, iterations):
+            a, fa = x, min(tried[-1][1] - target, 0.0)
+            fb, side = (fb / 2 if side == -1 else fb), -1
+        else:
+            b, fb = x, max(tried[-1][1] - target, 1e-6)
+            fa, side = (fa / 2 if side == 1 else fa), 1
+    return a, b
