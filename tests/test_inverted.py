@@ -55,3 +55,17 @@ def test_inverted_regions_are_reported_and_warned_of():
     assert warning["code"] == "simulate.inverted" and "hills.preview.png" in warning["fix"]
     assert inverted.problems(inverted_regions(mesh.vertices, mesh.vertices, mesh.faces),
                              "hills") == []
+
+
+def test_a_lone_inverted_point_beside_an_inverted_hill_is_no_region():
+    """A single point popped the wrong way (the left hill's top) makes no region of its
+    own, whatever the order of the triangles (its faces last here: once an error)."""
+    mesh, right = _two_hills()
+    popped = mesh.vertices.copy()
+    popped[:, 2] -= 2 * right
+    top = np.argmin(np.linalg.norm(mesh.vertices[:, :2] - [35, 30], axis=1))
+    popped[top, 2] -= 16.0
+    order = np.argsort(-np.linalg.norm(mesh.vertices[mesh.faces].mean(axis=1)[:, :2]
+                                       - [35, 30], axis=1))
+    found = inverted_regions(mesh.vertices, popped, mesh.faces[order])
+    assert found["regions"] == 1

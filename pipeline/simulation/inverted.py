@@ -42,9 +42,9 @@ def inverted_regions(target, simulated, faces, min_area_fraction=0.01):
     for _ in range(RINGS // 2):
         near = (smooth @ near.astype(float)) > 0
     label = _face_components(faces, near[faces].all(axis=1))
-    sizes = np.bincount(label[in_face], weights=area[in_face]) if in_face.any() else np.zeros(0)
-    keep = sizes >= min_area_fraction * area.sum()
-    chosen = in_face & keep[np.maximum(label, 0)] if len(sizes) else in_face
+    sizes = np.bincount(label[in_face], weights=area[in_face], minlength=max(label.max() + 1, 1))
+    keep = (sizes > 0) & (sizes >= min_area_fraction * area.sum())
+    chosen = in_face & keep[np.maximum(label, 0)]
     return {"regions": int(keep.sum()),
             "area_fraction": float(area[chosen].sum() / max(area.sum(), 1e-12)),
             "largest_mm2": float(sizes[keep].max()) if keep.any() else 0.0,
