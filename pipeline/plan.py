@@ -52,6 +52,7 @@ class Plan:
     curvature: object = None
     fit: object = None
     inverted: dict = None
+    validated: object = None
     problems: list = field(default_factory=list)
     fold_fraction: float = 0.0
     report: dict = field(default_factory=dict)
@@ -222,6 +223,7 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     opts = sidecar_settings(sidecar, profile)
     t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])
     hf, vrep = validate(hf, opts["max_fill_mm"], bed_mm=profile.bed_mm)
+    result.validated = hf
     hf, srep = simplify(hf, opts["min_prominence_mm"], opts["smooth_mm"])
     result.simplified = srep
     timing["validate"] = time.perf_counter() - t
@@ -350,10 +352,7 @@ def _fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
     if not force and (mode == "off" or _height_asked(sidecar)):
         return hf
     t = stage("fit", "how high the sheet can rise")
-    lim = profile.shrink_limits
-    result.fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
-                            fine_mm=profile.mesh.grid_mm,
-                            fine_iterations=profile.flatten.free_iterations)
+    result.fit = _fit(result, hf, profile, opts)
     timing["fit"] = time.perf_counter() - t
     if result.fit.applied_scale < 1.0:
         result.problems.append({
@@ -362,7 +361,8 @@ def _fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
                 result.fit.requested_height_mm, result.fit.max_height_mm,
                 100 * result.fit.applied_scale, result.fit.reason),
             "fix": "nothing to do; to plan the full relief anyway write `fit: off` in the "
-                   "sidecar, or ask for a height there (%s)" % result.fit.sidecar_line()})
+                   "sidecar, or ask for a height there (%s)%s" % (
+                       result.fit.sidecar_line(), result.fit.smoothing_advice())})
         return scaled(hf, result.fit.applied_scale)
     return hf
 
@@ -373,10 +373,7 @@ def _refuse_too_high(result, hf, profile, sidecar, opts, timing):
     if not (_height_asked(sidecar) and result.flat.invalid_area_fraction > INVALID_AREA_WARN):
         return
     t = time.perf_counter()
-    lim = profile.shrink_limits
-    result.fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
-                            fine_mm=profile.mesh.grid_mm,
-                            fine_iterations=profile.flatten.free_iterations)
+    result.fit = _fit(result, hf, profile, opts)
     result.fit.applied_scale = 1.0
     result.fit.reason = "asked for in the sidecar; " + result.fit.reason
     timing["fit"] = time.perf_counter() - t
@@ -386,9 +383,20 @@ def _refuse_too_high(result, hf, profile, sidecar, opts, timing):
                    "needs more than the material can do; at most %.1f mm forms" % (
                        result.fit.requested_height_mm, 100 * result.flat.invalid_area_fraction,
                        result.fit.max_height_mm),
-        "fix": "write `%s` in the sidecar %s (or remove its height to let hostd fit it)"
+        "fix": "write `%s` in the sidecar %s%s (or remove its height to let hostd fit it)"
                % (result.fit.sidecar_line(), Path(sidecar.source).name if sidecar.source
-                  else "")})
+                  else "", result.fit.smoothing_advice())})
+
+
+def _fit(result, hf, profile, opts):
+    """The fit of ``hf``, both levers: the relief, and the smoothing of the input as
+    validated (``result.validated``) that would form it at full height."""
+    lim = profile.shrink_limits
+    return fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
+                      fine_mm=profile.mesh.grid_mm,
+                      fine_iterations=profile.flatten.free_iterations,
+                      resmooth=lambda s: simplify(result.validated, opts["min_prominence_mm"],
+                                                  s)[0])
 
 
 def _free_sheet(result, hf, profile, stage, timing):

@@ -75,6 +75,35 @@ def test_a_relief_that_forms_is_left_as_it_is(tmp_path):
     plan = planner.run(_write(tmp_path, _cone(12.0), ""), FREE, tmp_path / "out")
     assert plan.report["fit"]["applied_scale"] == 1.0
     assert "fit.lowered" not in [p["code"] for p in plan.problems]
+    # ... and needs no smoothing either: none is looked for.
+    assert plan.report["fit"]["min_smooth_mm"] is None and plan.report["fit"]["smooth_tried"] == []
+
+
+def _hill_with_a_spike(px=0.5):
+    """A gentle 100 mm hill (8 mm) with a narrow spike on its flank (12 mm, 3 mm wide):
+    the spike alone is too steep to form."""
+    n = int(100 / px) + 1
+    y, x = np.mgrid[0:n, 0:n] * px
+    r = np.hypot(x - 50, y - 50)
+    z = 8.0 * np.clip(1 - (r / 50) ** 2, 0, None)
+    z += 12.0 * np.exp(-((x - 65) ** 2 + (y - 50) ** 2) / (2 * 3.0 ** 2))
+    z[r > 50] = np.nan
+    return HeightField(z, px, source="spike")
+
+
+def test_a_narrow_spike_is_offered_the_smoothing_that_forms_the_full_relief(tmp_path):
+    """The second lever: the least smoothing at which the relief as given forms is
+    reported and named in the fix, beside the lowered height."""
+    hf = _hill_with_a_spike()
+    np.save(tmp_path / "spike.npy", hf.z)
+    (tmp_path / "spike.yaml").write_text("pixel_mm: %r\nsmooth_mm: 0.5\n" % hf.pixel_mm)
+    plan = planner.run(tmp_path / "spike.npy", FREE, tmp_path / "out")
+    fit = plan.report["fit"]
+    assert fit["applied_scale"] < 1.0
+    assert fit["min_smooth_mm"] is not None and fit["min_smooth_mm"] <= 5.0
+    assert fit["smooth_tried"][-1][1] <= 0.02 and fit["smooth_tried"][-1][0] == fit["min_smooth_mm"]
+    [lowered] = [p for p in plan.problems if p["code"] == "fit.lowered"]
+    assert "smooth_mm: %g" % fit["min_smooth_mm"] in lowered["fix"]
 
 
 @pytest.mark.parametrize("power,solves", [(1, 4), (4, 8)])

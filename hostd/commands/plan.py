@@ -60,9 +60,17 @@ def _print_fit(fit):
     print("relief scale  invalid area  flipped")
     for scale, area, flipped in fit["tried"]:
         print("%12.3f  %11.2f %%  %7d" % (scale, 100 * area, flipped))
+    if fit.get("smooth_tried"):
+        print("   smooth_mm  invalid area  flipped   (the relief as given)")
+        for smooth, area, flipped in fit["smooth_tried"]:
+            print("%12g  %11.2f %%  %7d" % (smooth, 100 * area, flipped))
     print("fitted: %.1f mm of %.1f mm (scale %.3f), %d solves in %.1f s: %s" % (
-        fit["max_height_mm"], fit["requested_height_mm"], fit["applied_scale"], fit["solves"],
-        fit["seconds"], fit["reason"]))
+        fit["max_height_mm"], fit["requested_height_mm"], fit["applied_scale"],
+        fit["solves"] + len(fit.get("smooth_tried", [])), fit["seconds"], fit["reason"]))
+    if fit.get("smooth_tried"):
+        print("the relief as given forms with smooth_mm: %g" % fit["min_smooth_mm"]
+              if fit["min_smooth_mm"] is not None else
+              "no smoothing up to %g mm forms the relief as given" % fit["smooth_tried"][-1][0])
 
 
 def run(args):

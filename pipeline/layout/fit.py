@@ -30,6 +30,9 @@ class Fit:
     requested_height_mm : the relief as given; max_height_mm : the largest that forms;
     applied_scale : the scale the plan uses (1 when the relief was kept); reason : why;
     tried : [(scale, invalid area fraction, flipped triangles)] of every solve.
+    min_smooth_mm : the second lever: the least smoothing at which the relief as given
+    forms (None: none up to the cap, or not looked for); smooth_tried : its solves,
+    [(smooth_mm, invalid area fraction, flipped triangles)].
     """
 
     requested_height_mm: float
@@ -39,6 +42,8 @@ class Fit:
     reason: str
     tried: list = field(default_factory=list)
     seconds: float = 0.0
+    min_smooth_mm: float = None
+    smooth_tried: list = field(default_factory=list)
 
     def report(self):
         """The report's ``fit`` section."""
@@ -47,11 +52,40 @@ class Fit:
                 "applied_scale": round(self.applied_scale, 4), "smooth_mm": self.smooth_mm,
                 "reason": self.reason, "solves": len(self.tried),
                 "tried": [[round(s, 4), round(a, 4), int(f)] for s, a, f in self.tried],
+                "min_smooth_mm": self.min_smooth_mm,
+                "smooth_tried": [[s, round(a, 4), int(f)] for s, a, f in self.smooth_tried],
                 "seconds": round(self.seconds, 2)}
 
     def sidecar_line(self):
         """The sidecar line that asks for the largest relief that forms."""
         return "height_mm: %.1f" % (np.floor(self.max_height_mm * 10) / 10)
+
+    def smoothing_advice(self):
+        """The other way to make it form, keeping the height: ' or ...' or ''."""
+        if self.min_smooth_mm is None:
+            return ""
+        return " or keep the height and smooth it (`smooth_mm: %g` in the sidecar)" % (
+            self.min_smooth_mm)
+
+
+def least_smoothing(resmooth, s_min, s_max, smooth_mm, grid_mm, iterations=100,
+                    target=TARGET, cap_mm=None):
+    """The second lever: the least smoothing (doubling from twice ``smooth_mm``, at least
+    2 mm, up to ``cap_mm``) at which the relief as given forms on the coarse mesh.
+
+    resmooth : callable(smooth_mm) -> HeightField, the input smoothed that much.
+    Returns (smooth_mm or None, [(smooth_mm, invalid area, flipped)]).
+    """
+    tried = []
+    s = max(2.0 * smooth_mm, 2.0)
+    while cap_mm is None or s <= cap_mm:
+        flat = flatten_free(build_grid_mesh(resmooth(s), grid_mm), s_min, s_max,
+                            iterations=iterations)
+        tried.append((float(s), float(flat.invalid_area_fraction), int(flat.flipped)))
+        if flat.invalid_area_fraction <= target and flat.flipped == 0:
+            return float(s), tried
+        s *= 2.0
+    return None, tried
 
 
 def scaled(hf, scale):
@@ -75,7 +109,8 @@ def slope_bound(hf, s_max, share=0.98):
 
 
 def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
-               iterations=100, steps=3, fine_mm=1.0, fine_steps=6, fine_iterations=200):
+               iterations=100, steps=3, fine_mm=1.0, fine_steps=6, fine_iterations=200,
+               resmooth=None):
     """The largest relief scale (<= 1) at which ``hf`` forms with the free layout.
 
     hf : validated HeightField; grid_mm : the search's mesh spacing (default: an 80th of
@@ -83,7 +118,9 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
     side of it); steps : bisection solves after the bounds on that mesh; fine_mm,
     fine_steps, fine_iterations : then a few on the plan's own mesh spacing and
     iterations, up from the coarse answer, so the fit is the largest relief the plan
-    forms, not a coarse mesh's.
+    forms, not a coarse mesh's. resmooth : callable(smooth_mm) -> HeightField; where
+    given and the relief does not form, :func:`least_smoothing` looks for the second
+    lever (capped at a twentieth of the field's longest side).
     Returns :class:`Fit` (``applied_scale`` is the fitted scale; the caller decides
     whether to apply it).
     """
@@ -123,8 +160,13 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
     reason = ("slopes steeper than the material can form (at most %.0f degrees for a shrink "
               "of %.0f %%)" % (np.degrees(np.arccos(1.0 - s_max)), 100 * s_max)
               if lo > 0 else "no relief down to 2 % of the given one forms")
+    least, smooth_tried = (None, [])
+    if resmooth is not None:
+        least, smooth_tried = least_smoothing(resmooth, s_min, s_max, smooth_mm, grid,
+                                              iterations, target,
+                                              cap_mm=max(rows, cols) * hf.pixel_mm / 20.0)
     return Fit(relief, relief * lo, float(lo), smooth_mm, reason, tried,
-               time.perf_counter() - t0)
+               time.perf_counter() - t0, least, smooth_tried)
 
 
 def _close_in(ok, tried, a, b, target, steps, spacing, iterations, area_a=None):
