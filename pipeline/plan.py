@@ -423,7 +423,7 @@ def _free_sheet(result, hf, profile, stage, timing):
     # rises, so bending pulls toward the target instead of toward flat.
     result.curvature = curvature.program(
         curvature.along_print_direction(hf, mesh, flat), mesh.faces, flat.xy, flat.direction,
-        sigma, thick, lim.s_min, lim.s_max)
+        sigma, thick, lim.s_min, lim.s_max, c=profile.curvature.bilayer_c)
     sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick,
                          theta_rest=result.curvature.theta_rest, pop=BATH_BUMP)
     result.sim = sim
@@ -497,7 +497,9 @@ def _report(path, profile, p, vrep, srep, timing):
             **({"inverted": inverted.report(p.inverted)} if p.inverted else {})),
         "toolpath": _json_ready(p.toolpaths.info),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
-        **({"curvature": p.curvature.report()} if p.curvature is not None else {}),
+        **({"curvature": dict(p.curvature.report(), bilayer_c=profile.curvature.bilayer_c,
+                              bilayer_c_status=profile.curvature.status)}
+           if p.curvature is not None else {}),
         **({"fit": p.fit.report()} if p.fit is not None else {}),
         "printable": p.printable,
         "warnings": list(p.problems),

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import __version__
+from pipeline.profiles import bilayer
 from pipeline.profiles.calibration import (COLUMNS, CalibrationError, calibration_traces, fit_measurements,
                                   layout_plates, layout_svg, measurements_template,
                                   read_measurements, thickness_values)
@@ -57,6 +58,27 @@ def add_parser(subparsers):
     f.add_argument("--degree", type=int, default=4, help="polynomial degree (paper: 4)")
     f.add_argument("--force", action="store_true", help="overwrite NEW.yaml if it exists")
     f.set_defaults(func=run_fit)
+    b = sub.add_parser("bilayer", help="write G-code for bilayer strips and a CSV template",
+                       description="Write DIR/bilayer.gcode: strips whose lower layers are "
+                                   "thinner than their upper ones by a few differences (one "
+                                   "with none), DIR/bilayer_layout.svg and DIR/bilayer.csv.")
+    b.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
+    b.add_argument("-o", "--out", required=True, metavar="DIR", help="output directory")
+    b.add_argument("--values", type=int, default=5, help="thickness differences (default 5)")
+    b.add_argument("--repeats", type=int, default=2, help="strips per difference (default 2)")
+    b.add_argument("--force", action="store_true",
+                   help="overwrite a bilayer.csv that already has measurements")
+    b.set_defaults(func=run_bilayer)
+    bf = sub.add_parser("bilayer-fit", help="fit the bilayer constant from measured strips",
+                        description="Fit c of kappa = c (sigma_bottom - sigma_top) / h to the "
+                                    "measured curl of the strips and write an updated copy of "
+                                    "the profile with it (curvature.bilayer_c).")
+    bf.add_argument("measured", metavar="BILAYER.csv")
+    bf.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
+    bf.add_argument("-o", "--out", required=True, metavar="NEW.yaml",
+                    help="where to write the updated profile (never the original)")
+    bf.add_argument("--force", action="store_true", help="overwrite NEW.yaml if it exists")
+    bf.set_defaults(func=run_bilayer_fit)
     parser.set_defaults(func=lambda args: _usage(parser))
     return parser
 
@@ -152,29 +174,38 @@ def _same_file(a, b):
         return False
 
 
+def _new_profile_path(profile, args):
+    """Where a calibrated copy goes: never the original, never over a file unasked."""
+    new = Path(args.out)
+    if profile.source and _same_file(new, profile.source):
+        raise CalibrationError(
+            "refusing to overwrite the original profile %s" % profile.source,
+            code="calibration.would_overwrite_profile", file=new,
+            fix="write the calibrated profile to a new file, e.g. %s-calibrated.yaml"
+                % profile.name)
+    if new.exists() and not args.force:
+        raise CalibrationError("%s already exists" % new, code="calibration.would_overwrite",
+                               file=new, fix="choose another -o path, or add --force")
+    return new
+
+
+def _read_text(src):
+    try:
+        return Path(src).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError("cannot read measurements: %s" % exc,
+                               code="calibration.unreadable", file=src,
+                               fix="give the CSV `hostd calibrate` wrote") from None
+
+
 def run_fit(args):
     try:
         profile = load_profile(args.profile)
-        new = Path(args.out)
-        if profile.source and _same_file(new, profile.source):
-            raise CalibrationError(
-                "refusing to overwrite the original profile %s" % profile.source,
-                code="calibration.would_overwrite_profile", file=new,
-                fix="write the calibrated profile to a new file, e.g. %s-calibrated.yaml"
-                    % profile.name)
-        if new.exists() and not args.force:
-            raise CalibrationError("%s already exists" % new, code="calibration.would_overwrite",
-                                   file=new, fix="choose another -o path, or add --force")
+        new = _new_profile_path(profile, args)
         if args.degree < 1:
             raise CalibrationError("--degree must be at least 1", code="calibration.degree")
         src = Path(args.measured)
-        try:
-            text = src.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise CalibrationError("cannot read measurements: %s" % exc,
-                                   code="calibration.unreadable", file=src,
-                                   fix="give the CSV written by `hostd calibrate print`") from None
-        rows = read_measurements(text, source=str(src))
+        rows = read_measurements(_read_text(src), source=str(src))
         trange = (profile.thickness_mm.min, profile.thickness_mm.max)
         fit = fit_measurements(rows, degree=args.degree, theta_range_mm=trange, source=str(src))
         lo, hi = fit.theta_range_mm
@@ -221,4 +252,78 @@ def _report(rows, fit, trange, new):
     print("wrote %s" % new)
 
 
-__all__ = ["add_parser", "run_print", "run_fit", "COLUMNS"]
+def run_bilayer(args):
+    try:
+        profile = load_profile(args.profile)
+        out = Path(args.out)
+        csv_path = out / "bilayer.csv"
+        if csv_path.exists() and not args.force and any(
+                s.chord_mm for s in _measured_or_none(csv_path)):
+            raise CalibrationError(
+                "%s already holds measurements" % csv_path, code="calibration.would_overwrite",
+                file=csv_path, fix="use another -o DIR, or --force to start over")
+        pairs = bilayer.thickness_pairs(profile.shrink_curve, profile.layers,
+                                        profile.thickness_mm.min, profile.thickness_mm.max,
+                                        args.values, c=profile.curvature.bilayer_c)
+        plates, pair_of = bilayer.strips(pairs, args.repeats, profile.bed_mm)
+        specimens = [s for plate in plates for s in plate]
+        traces, thetas, labels = bilayer.strip_traces(specimens, pair_of, profile.layers,
+                                                      profile.path_width_mm)
+        out.mkdir(parents=True, exist_ok=True)
+        stats = write_thickness_gcode(
+            traces, thetas, GcodeSettings.from_profile(profile, arc_tolerance_mm=0.0),
+            out / "bilayer.gcode", labels=labels, center=False,
+            name="bilayer strips, profile %s" % profile.name)
+        _write_atomic(out / "bilayer_layout.svg", layout_svg(
+            plates, profile.bed_mm, "hostd bilayer strips, profile %s" % profile.name))
+        _write_atomic(csv_path, bilayer.template(specimens, pair_of, profile.name))
+    except PipelineError as exc:
+        return _fail(exc)
+    print("%d strips (bottom/top mm: %s) x %d repeats, estimated %.0f min"
+          % (len(pairs), ", ".join("%g/%g" % tuple(p) for p in pairs), args.repeats,
+             stats["estimated_print_s"] / 60))
+    for name in ("bilayer.gcode", "bilayer_layout.svg", "bilayer.csv"):
+        print("wrote %s" % (out / name))
+    print("next: print, bathe, measure each strip's rise over its chord into %s, then\n"
+          "  hostd calibrate bilayer-fit %s --profile %s -o %s-bilayer.yaml"
+          % (csv_path, csv_path, args.profile, profile.name))
+    return 0
+
+
+def _measured_or_none(csv_path):
+    try:
+        return bilayer.read_strips(csv_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, PipelineError):
+        return [bilayer.Strip("?", 0, 0, 1.0, 0.0)]
+
+
+def run_bilayer_fit(args):
+    try:
+        profile = load_profile(args.profile)
+        new = _new_profile_path(profile, args)
+        src = Path(args.measured)
+        strips = bilayer.read_strips(_read_text(src), source=str(src))
+        c, rms, pts = bilayer.fit_c(strips, profile.shrink_curve, profile.layers)
+        if not 0 < c <= 20:
+            raise CalibrationError("the strips give c = %.3g, which no bilayer has" % c,
+                                   code="calibration.bad_fit", file=src,
+                                   fix="check that rise_mm is measured on the curled side and "
+                                       "that each row names its strip's thicknesses")
+        comment = ("hostd printer profile with the bilayer constant fitted by `hostd calibrate "
+                   "bilayer-fit` (hostd %s) on %s\nfrom %s (%d strips), starting from %s."
+                   % (__version__, datetime.date.today().isoformat(), src.name, len(strips),
+                      profile.source or profile.name))
+        _write_atomic(new, profile_to_yaml(
+            profile, comment=comment, name=new.stem if new.suffix in (".yaml", ".yml") else
+            new.name, curvature={"bilayer_c": round(c, 4), "status": "measured"}))
+    except PipelineError as exc:
+        return _fail(exc)
+    print("%-9s %9s %9s %12s %12s" % ("specimen", "bottom", "top", "curl 1/mm", "fit 1/mm"))
+    for s, (x, k) in zip(strips, pts):
+        print("%-9s %9g %9g %12.5f %12.5f" % (s.specimen, s.bottom_mm, s.top_mm, k, c * x))
+    print("bilayer constant c = %.3f (RMS residual %.5f 1/mm, %d strips)" % (c, rms, len(strips)))
+    print("wrote %s" % new)
+    return 0
+
+
+__all__ = ["add_parser", "run_print", "run_fit", "run_bilayer", "run_bilayer_fit", "COLUMNS"]

@@ -142,6 +142,15 @@ class ToolpathParams:
 
 
 @dataclass(frozen=True)
+class CurvatureParams:
+    """The bilayer's constant: ``kappa = bilayer_c * (sigma_bottom - sigma_top) / h``."""
+    # Timoshenko's bilayer of two equal layers of one material; `hostd calibrate
+    # bilayer-fit` measures the printer's own and marks it `measured`.
+    bilayer_c: float = _num(1.5, hi=20.0)
+    status: str = _str("uncalibrated", choices=("uncalibrated", "measured"))
+
+
+@dataclass(frozen=True)
 class PrintableLimits:
     """Within these a plan prints by itself; outside them it waits for a person (fractions)."""
     max_invalid_area: float = _num(0.25, strict=False, hi=1.0)
@@ -197,6 +206,7 @@ class Profile:
     flatten: FlattenParams = _section(FlattenParams)
     toolpath: ToolpathParams = _section(ToolpathParams)
     printable: PrintableLimits = _section(PrintableLimits)
+    curvature: CurvatureParams = _section(CurvatureParams)
     validate: ValidateParams = _section(ValidateParams)
     defaults: Defaults = _section(Defaults)
     source: str = field(default="", compare=False, metadata={"kind": None})
