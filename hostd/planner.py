@@ -121,8 +121,8 @@ def write_outputs(st, plan):
             flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
             title="%s: flat layout, shrink per printing edge" % name))
     st.write_image(out["preview.png"], render.preview_image(
-        target, sim_faces, sim.vertices, disp,
-        title=preview_title(plan)))
+        target, sim_faces, sim.vertices, disp, title=preview_title(plan),
+        inverted_faces=plan.inverted["faces"] if plan.inverted else None))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(out["input.png"], hfimage.heightfield_image(

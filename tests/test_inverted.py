@@ -69,3 +69,26 @@ def test_a_lone_inverted_point_beside_an_inverted_hill_is_no_region():
                                        - [35, 30], axis=1))
     found = inverted_regions(mesh.vertices, popped, mesh.faces[order])
     assert found["regions"] == 1
+
+
+def test_the_preview_hatches_the_inverted_region_and_only_it(tmp_path):
+    from pipeline.pictures import render
+    from pipeline.pictures.figure import INVERTED
+    mesh, right = _two_hills()
+    popped = mesh.vertices.copy()
+    popped[:, 2] -= 2 * right
+    found = inverted_regions(mesh.vertices, popped, mesh.faces)
+    disp = np.linalg.norm(popped - mesh.vertices, axis=1)
+
+    def blue(img, cols):
+        a = np.asarray(img).astype(int)[:, cols]
+        return (np.abs(a - np.array(INVERTED)) < 60).all(axis=2) & (a[..., 2] > a[..., 0] + 80)
+    kw = dict(panel_px=(400, 300), azimuth_deg=0, elevation_deg=60, contour_mm=None)
+    img = render.preview_image(mesh.vertices, mesh.faces, popped, disp,
+                               inverted_faces=found["faces"], **kw)
+    plain = render.preview_image(mesh.vertices, mesh.faces, popped, disp, **kw)
+    # The simulated panel is the right one: its left half holds the right way hill, its
+    # right half the one that came out as a pit.
+    assert blue(img, slice(600, 780)).sum() > 300
+    assert blue(img, slice(420, 590)).sum() < 10
+    assert blue(plain, slice(0, plain.width)).sum() < 10

@@ -32,6 +32,7 @@ COLORMAPS = {
 NAN_COLOR = (160, 160, 160)
 INVALID_HIGH = (225, 0, 215)  # needs more shrink than the material gives
 INVALID_LOW = (20, 20, 20)    # would need to expand
+INVERTED = (25, 95, 235)     # settled the other way up (hatched on the preview)
 INK = (35, 35, 40)
 MUTED = (105, 105, 112)
 WHITE = 255.0

@@ -11,7 +11,7 @@ caller can overlay or hit-test in millimetres.
 import numpy as np
 from PIL import Image, ImageDraw
 
-from pipeline.pictures.figure import (INK, INVALID_HIGH, INVALID_LOW, MUTED, WHITE, colorbar, colormap,
+from pipeline.pictures.figure import (INK, INVALID_HIGH, INVERTED, INVALID_LOW, MUTED, WHITE, colorbar, colormap,
                              font, fmt_number, framed, nice_ceil, scale_bar, stat_lines, swatch,
                              text_size, to_image)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
@@ -291,7 +291,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
 
 def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, title="",
                   panel_px=(760, None), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None,
-                  contour_mm="auto"):
+                  contour_mm="auto", inverted_faces=None):
     """Target and simulated shape side by side in one oblique view, error as colour.
 
     Parameters
@@ -309,6 +309,9 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
         Top of the colour scale; default a round number above the maximum.
     contour_mm : float, "auto" or None
         Faint height contours on both shapes ("auto": about ten over the height).
+    inverted_faces : (m,) bool, optional
+        Faces of the regions that settled the other way up
+        (:func:`pipeline.simulation.inverted.inverted_regions`), hatched on the simulated shape.
 
     Returns
     -------
@@ -335,7 +338,8 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     kw = dict(size_px=(pw, ph), elevation_deg=elevation_deg, azimuth_deg=azimuth_deg, fit=fit,
               contour_mm=contour_mm)
     a, _ = shaded_view(tv, faces, None, **kw)
-    b, _ = shaded_view(sv, faces, disp, 0.0, vmax, "displacement", **kw)
+    hatch = None if inverted_faces is None or not np.any(inverted_faces) else inverted_faces
+    b, _ = shaded_view(sv, faces, disp, 0.0, vmax, "displacement", hatch=hatch, **kw)
     fs = 16
     label_h = 34
     body = Image.new("RGB", (2 * pw, ph + label_h), (255, 255, 255))
@@ -354,8 +358,11 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "preview", sub, legend_w=120,
                                               legend_min_h=260, footer_h=50, fs=fs,
                                               legend_texts=["displacement (mm)"])
-    colorbar(fig, lx, ly + label_h, 24, int(np.clip(ph - 90, 150, 320)), "displacement", 0.0, vmax,
+    bar_h = int(np.clip(ph - 90, 150, 320))
+    colorbar(fig, lx, ly + label_h, 24, bar_h, "displacement", 0.0, vmax,
              "displacement (mm)", fs=fs)
+    if hatch is not None:
+        swatch(fig, lx, ly + label_h + bar_h + 2 * fs, INVERTED, "inverted", fs)
     x = scale_bar(fig, bxy[0] + 20, fy + 12, fit[1], 0.35 * pw, fs)
     ImageDraw.Draw(fig).text((x + 8, fy + 6), "(across the view)", font=font(fs - 3), fill=MUTED)
     return fig

@@ -7,7 +7,7 @@ Used by :func:`pipeline.pictures.render.preview_image`; usable on its own for th
 import numpy as np
 from PIL import Image, ImageFilter
 
-from pipeline.pictures.figure import colormap
+from pipeline.pictures.figure import INVERTED, colormap
 from pipeline.pictures.raster import pixel_barycentrics, rasterize_triangles
 
 
@@ -50,7 +50,8 @@ def _light(cam):
 
 def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displacement",
                 base_color=(178, 188, 204), size_px=(800, 600), elevation_deg=35.0,
-                azimuth_deg=-30.0, fit=None, supersample=2, shadow=True, contour_mm=None):
+                azimuth_deg=-30.0, fit=None, supersample=2, shadow=True, contour_mm=None,
+                hatch=None):
     """Shaded orthographic render of a triangle mesh (z-buffer, per-pixel normals).
 
     Parameters
@@ -71,6 +72,8 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
         Soft shadow cast on the plane under the lowest point.
     contour_mm : float, optional
         Draw faint height contours this far apart (helps read the shape).
+    hatch : (m,) bool, optional
+        Faces striped in ``INVERTED`` (the regions that settled the other way up).
 
     Returns
     -------
@@ -118,6 +121,10 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
         edge = ((right != b0) & (right != np.iinfo(np.int32).min)) | \
                ((below != b0) & (below != np.iinfo(np.int32).min))
         rgb[edge] *= 0.72
+    if hatch is not None:
+        # Diagonal stripes keep the shading and the error colour readable between them.
+        stripe = np.asarray(hatch, bool)[f] & ((rows + cols) // (3 * ss) % 3 == 0)
+        rgb[stripe] = np.asarray(INVERTED, np.float32) * (0.55 + 0.45 * shade[stripe, None])
     img = np.zeros((Hs, Ws, 4), np.uint8)
     if shadow:
         img[..., 3] = _shadow(v, faces, cam, L, (cx, cy), s * ss, (Hs, Ws))
