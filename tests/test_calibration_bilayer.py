@@ -57,10 +57,12 @@ def _measure(printed, c, tmp_path):
             continue
         b, t = float(cells[1]), float(cells[2])
         sb, st = PROFILE.shrink_curve.sigma(np.array([b, t]))
-        kappa = c * (sb - st) / (PROFILE.layers * (b + t) / 2)
+        h = PROFILE.layers * (b + t) / 2
+        kappa = c * (sb - st) / h
         half = 0.5 * bilayer.LENGTH_MM * kappa
-        chord = 2 * np.sin(half) / kappa if kappa else bilayer.LENGTH_MM
-        rise = (1 - np.cos(half)) / kappa if kappa else 0.0
+        inside = 1 / kappa - h / 2 if kappa else 0.0        # the face the ruler spans
+        chord = 2 * inside * np.sin(half) if kappa else bilayer.LENGTH_MM
+        rise = inside * (1 - np.cos(half)) if kappa else 0.0
         out.append(",".join(cells[:4] + ["%.3f" % chord, "%.3f" % rise]))
     path = tmp_path / "bilayer.csv"
     path.write_text("\n".join(out) + "\n")
@@ -107,3 +109,11 @@ def test_shipped_profiles_carry_an_uncalibrated_constant_and_the_plan_uses_the_p
     d1, d3 = (np.abs(plans[c].curvature.delta_sigma).max() for c in (1.5, 3.0))
     assert d3 == pytest.approx(d1 / 2, rel=0.05)
     assert plans[3.0].report["curvature"]["bilayer_c"] == 3.0
+
+
+def test_a_strip_curled_the_other_way_has_a_negative_curvature():
+    up = bilayer.Strip("1", 0.25, 0.3, 50.0, 5.0)
+    down = bilayer.Strip("2", 0.25, 0.3, 50.0, -5.0)
+    assert up.curvature(6) > 0 and down.curvature(6) == pytest.approx(-up.curvature(6))
+    # The middle surface lies half the printed thickness (6 x 0.275 / 2) outside the face.
+    assert 1 / up.curvature(6) == pytest.approx((50.0 ** 2 + 4 * 25) / 40 + 0.825)

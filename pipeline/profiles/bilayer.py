@@ -75,9 +75,10 @@ def template(specimens, pair_of, profile_name):
         % (profile_name, len(specimens), LENGTH_MM, WIDTH_MM, LENGTH_MM),
         "# 1. Print bilayer.gcode; bilayer_layout.svg shows which strip is which.",
         "# 2. Bathe them at 80-90 C until they stop moving; let them cool.",
-        "# 3. Lay each strip on its edge on a table, curled side up. Hold a ruler across its"
-        " two ends: write the distance between the ends in chord_mm and the largest gap"
-        " between the ruler and the strip's middle in rise_mm (0 for a flat strip).",
+        "# 3. Lay each strip on its edge on a table. Hold a ruler across its two ends on the"
+        " inside of the curl: write the distance between the ends in chord_mm and the largest"
+        " gap between the ruler and the strip in rise_mm (0 for a flat strip; negative if the"
+        " bed side of the strip is on the outside of the curl, the other way than expected).",
         "# 4. hostd calibrate bilayer-fit bilayer.csv --profile %s -o %s-bilayer.yaml"
         % (profile_name, profile_name),
     ]
@@ -98,10 +99,17 @@ class Strip:
     chord_mm: float
     rise_mm: float
 
-    @property
-    def curvature(self):
-        """1/mm of the circle through the ends and the middle: ``8 r / (L^2 + 4 r^2)``."""
-        return 8.0 * self.rise_mm / (self.chord_mm ** 2 + 4.0 * self.rise_mm ** 2)
+    def curvature(self, layers):
+        """1/mm of the strip's middle surface, positive when its bed side (the thinner,
+        more shrinking layers) is inside the curl: the rise is measured to the inside
+        face, whose circle through the ends and the middle has radius
+        ``(L^2 + 4 r^2) / (8 r)``; the middle lies half the printed thickness further out."""
+        r = abs(self.rise_mm)
+        if r == 0:
+            return 0.0
+        inside = (self.chord_mm ** 2 + 4.0 * r * r) / (8.0 * r)
+        return float(np.sign(self.rise_mm)) / (inside + 0.25 * layers * (self.bottom_mm
+                                                                          + self.top_mm))
 
 
 def read_strips(text, source=None):
@@ -123,11 +131,12 @@ def read_strips(text, source=None):
             raise CalibrationError("row %d: %r is not a number" % (n, ",".join(cells)),
                                    code="calibration.not_a_number", file=source,
                                    where="row %d" % n, fix="write mm as plain numbers") from None
-        if chord <= 0 or rise < 0 or 2 * rise > chord:
+        if chord <= 0 or 2 * abs(rise) > chord:
             raise CalibrationError("row %d: a rise of %g mm over a chord of %g mm is no arc"
                                    % (n, rise, chord), code="calibration.bad_value",
                                    file=source, where="row %d" % n,
-                                   fix="chord_mm > 0, 0 <= rise_mm <= chord_mm / 2")
+                                   fix="chord_mm > 0 and the rise at most half of it (a strip "
+                                       "that curled further: print shorter strips)")
         out.append(Strip(cells[0], bottom, top, chord, rise))
     return out
 
@@ -142,7 +151,7 @@ def fit_c(measured, shrink, layers):
     for s in measured:
         sb, st = (float(v) for v in shrink.sigma(np.array([s.bottom_mm, s.top_mm])))
         h = layers * 0.5 * (s.bottom_mm + s.top_mm)          # printed thickness
-        pts.append(((sb - st) / h, s.curvature))
+        pts.append(((sb - st) / h, s.curvature(layers)))
     x = np.array([p[0] for p in pts])
     k = np.array([p[1] for p in pts])
     if np.count_nonzero(np.abs(x) > 1e-9) < 2:
