@@ -40,6 +40,12 @@ def test_only_the_readme_block_is_replaced(tmp_path):
     figures.write(res, tmp_path / "figures.md", readme)
     text = readme.read_text()
     assert text.startswith("# hostd\n\nintro\n\n") and text.endswith("\n## After\ntext\n")
-    assert "old numbers" not in text and "| dome |" in text and "starfish" not in text
+    assert "old numbers" not in text and "| dome (isoline, paper's sim.) |" in text
+    assert "starfish" not in text
+    # Both methods under one simulation join the headline rows.
+    figures.save("methods", {"dome": {"methods": {"free": dict(DOME, fit_scale=1.0)}}}, COND,
+                 folder=res)
+    figures.write(res, tmp_path / "figures.md", readme)
+    assert "| dome (free) |" in readme.read_text()
     assert "docs/figures.md" in text
     assert "| starfish |" in (tmp_path / "figures.md").read_text()
