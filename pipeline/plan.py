@@ -404,12 +404,17 @@ def _free_sheet(result, hf, profile, stage, timing):
     chooses, the thin-shell simulation of that sheet, and stripe paths along it."""
     mp, fp, lim = profile.mesh, profile.flatten, profile.shrink_limits
     t = stage("mesh", "a plain triangulation every %.3g mm" % mp.grid_mm)
-    mesh = build_grid_mesh(hf, mp.grid_mm)
+    # The fit solved this very layout (the lowered relief, this mesh, these iterations)
+    # on its last step: take it rather than solve it again.
+    fit = result.fit
+    reuse = fit.layout if fit is not None and fit.applied_scale < 1.0 else None
+    mesh = reuse[0] if reuse else build_grid_mesh(hf, mp.grid_mm)
     result.mesh = mesh
     timing["mesh"] = time.perf_counter() - t
-    t = stage("flatten", "%d triangles, free direction, up to %d iterations"
-              % (len(mesh.faces), fp.free_iterations))
-    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=fp.free_iterations)
+    t = stage("flatten", "%d triangles, free direction, up to %d iterations%s"
+              % (len(mesh.faces), fp.free_iterations, ", solved by the fit" if reuse else ""))
+    flat = reuse[1] if reuse else flatten_free(mesh, lim.s_min, lim.s_max,
+                                               iterations=fp.free_iterations)
     result.flat = flat
     timing["flatten"] = time.perf_counter() - t
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)

@@ -64,9 +64,11 @@ def _print_fit(fit):
         print("   smooth_mm  invalid area  flipped   (the relief as given)")
         for smooth, area, flipped in fit["smooth_tried"]:
             print("%12g  %11.2f %%  %7d" % (smooth, 100 * area, flipped))
-    print("fitted: %.1f mm of %.1f mm (scale %.3f), %d solves in %.1f s: %s" % (
-        fit["max_height_mm"], fit["requested_height_mm"], fit["applied_scale"],
-        fit["solves"] + len(fit.get("smooth_tried", [])), fit["seconds"], fit["reason"]))
+    print("fitted: %.1f mm of %.1f mm (scale %.3f), %d solves in %.1f s (%.1f s of them "
+          "smoothing): %s" % (
+              fit["max_height_mm"], fit["requested_height_mm"], fit["applied_scale"],
+              fit["solves"] + len(fit.get("smooth_tried", [])), fit["seconds"],
+              fit.get("smooth_seconds", 0.0), fit["reason"]))
     if fit.get("smooth_tried"):
         print("the relief as given forms with smooth_mm: %g" % fit["min_smooth_mm"]
               if fit["min_smooth_mm"] is not None else

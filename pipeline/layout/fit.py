@@ -32,7 +32,9 @@ class Fit:
     tried : [(scale, invalid area fraction, flipped triangles)] of every solve.
     min_smooth_mm : the second lever: the least smoothing at which the relief as given
     forms (None: none up to the cap, or not looked for); smooth_tried : its solves,
-    [(smooth_mm, invalid area fraction, flipped triangles)].
+    [(smooth_mm, invalid area fraction, flipped triangles)]; smooth_seconds : their time
+    (part of ``seconds``). layout : (mesh, FreeLayout) of the solve on the plan's own
+    mesh at ``applied_scale``, when there was one: the plan's layout, not solved again.
     """
 
     requested_height_mm: float
@@ -44,6 +46,8 @@ class Fit:
     seconds: float = 0.0
     min_smooth_mm: float = None
     smooth_tried: list = field(default_factory=list)
+    smooth_seconds: float = 0.0
+    layout: tuple = None
 
     def report(self):
         """The report's ``fit`` section."""
@@ -54,7 +58,8 @@ class Fit:
                 "tried": [[round(s, 4), round(a, 4), int(f)] for s, a, f in self.tried],
                 "min_smooth_mm": self.min_smooth_mm,
                 "smooth_tried": [[s, round(a, 4), int(f)] for s, a, f in self.smooth_tried],
-                "seconds": round(self.seconds, 2)}
+                "seconds": round(self.seconds, 2), "smooth_seconds": round(self.smooth_seconds, 2),
+                "layout_reused": self.layout is not None}
 
     def sidecar_line(self):
         """The sidecar line that asks for the largest relief that forms."""
@@ -68,24 +73,21 @@ class Fit:
             self.min_smooth_mm)
 
 
-def least_smoothing(resmooth, s_min, s_max, smooth_mm, grid_mm, iterations=100,
-                    target=TARGET, cap_mm=None):
-    """The second lever: the least smoothing (doubling from twice ``smooth_mm``, at least
-    2 mm, up to ``cap_mm``) at which the relief as given forms on the coarse mesh.
+def least_smoothing(forms, smooth_mm, cap_mm=None, step_mm=0.5):
+    """The second lever: the least smoothing at which the relief as given forms.
 
-    resmooth : callable(smooth_mm) -> HeightField, the input smoothed that much.
-    Returns (smooth_mm or None, [(smooth_mm, invalid area, flipped)]).
+    forms : callable(smooth_mm) -> bool, a quick layout solve of the input smoothed that
+    much. Doubles from twice ``smooth_mm`` (at least 2 mm) up to ``cap_mm``, then tries
+    once halfway back to the last that did not form (to ``step_mm``): the answer is
+    within a quarter of itself in a few solves. Returns smooth_mm or None.
     """
-    tried = []
-    s = max(2.0 * smooth_mm, 2.0)
+    below, s = smooth_mm, max(2.0 * smooth_mm, 2.0)
     while cap_mm is None or s <= cap_mm:
-        flat = flatten_free(build_grid_mesh(resmooth(s), grid_mm), s_min, s_max,
-                            iterations=iterations)
-        tried.append((float(s), float(flat.invalid_area_fraction), int(flat.flipped)))
-        if flat.invalid_area_fraction <= target and flat.flipped == 0:
-            return float(s), tried
-        s *= 2.0
-    return None, tried
+        if forms(s):
+            mid = np.round((below + s) / 2 / step_mm) * step_mm
+            return float(mid) if below < mid < s and forms(float(mid)) else float(s)
+        below, s = s, s * 2.0
+    return None
 
 
 def scaled(hf, scale):
@@ -129,13 +131,16 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
     relief = float(np.nanmax(z) - np.nanmin(z))
     rows, cols = z.shape
     grid = grid_mm or max(2.0, max(rows, cols) * hf.pixel_mm / 80.0)
-    tried = []
+    tried, formed = [], {}
 
     def ok(scale, spacing=grid, its=iterations):
-        flat = flatten_free(build_grid_mesh(scaled(hf, scale), spacing), s_min, s_max,
-                            iterations=its)
+        mesh = build_grid_mesh(scaled(hf, scale), spacing)
+        flat = flatten_free(mesh, s_min, s_max, iterations=its)
         tried.append((float(scale), float(flat.invalid_area_fraction), int(flat.flipped)))
-        return flat.invalid_area_fraction <= target and flat.flipped == 0
+        good = flat.invalid_area_fraction <= target and flat.flipped == 0
+        if good and spacing == fine_mm and its == fine_iterations:
+            formed[float(scale)] = (mesh, flat)
+        return good
 
     if ok(1.0):
         return Fit(relief, relief, 1.0, smooth_mm, "forms as given", tried,
@@ -160,13 +165,17 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
     reason = ("slopes steeper than the material can form (at most %.0f degrees for a shrink "
               "of %.0f %%)" % (np.degrees(np.arccos(1.0 - s_max)), 100 * s_max)
               if lo > 0 else "no relief down to 2 % of the given one forms")
-    least, smooth_tried = (None, [])
+    t1, least, smooth_tried = time.perf_counter(), None, []
     if resmooth is not None:
-        least, smooth_tried = least_smoothing(resmooth, s_min, s_max, smooth_mm, grid,
-                                              iterations, target,
-                                              cap_mm=max(rows, cols) * hf.pixel_mm / 20.0)
-    return Fit(relief, relief * lo, float(lo), smooth_mm, reason, tried,
-               time.perf_counter() - t0, least, smooth_tried)
+        def forms(smooth):
+            flat = flatten_free(build_grid_mesh(resmooth(smooth), grid), s_min, s_max,
+                                iterations=iterations)
+            smooth_tried.append((smooth, float(flat.invalid_area_fraction), int(flat.flipped)))
+            return flat.invalid_area_fraction <= target and flat.flipped == 0
+        least = least_smoothing(forms, smooth_mm, cap_mm=max(rows, cols) * hf.pixel_mm / 20.0)
+    t2 = time.perf_counter()
+    return Fit(relief, relief * lo, float(lo), smooth_mm, reason, tried, t2 - t0, least,
+               smooth_tried, t2 - t1, formed.get(float(lo)))
 
 
 def _close_in(ok, tried, a, b, target, steps, spacing, iterations, area_a=None):
@@ -179,12 +188,15 @@ def _close_in(ok, tried, a, b, target, steps, spacing, iterations, area_a=None):
         return next((ar for sc, ar, _ in reversed(tried) if sc == scale), target)
     fa = (area(a) if area_a is None else area_a) - target
     fb = area(b) - target
-    fa, fb, side = min(fa, 0.0), max(fb, 1e-6), 0
+    fa, fb, side, crept = min(fa, 0.0), max(fb, 1e-6), 0, 0
     for _ in range(steps):
         if b - a < 0.03 * b:
             break
         w = -fa / max(fb - fa, 1e-12)
-        x = a + (b - a) * min(max(w, 0.1), 0.9)
+        # Near the bracket's lower end twice: the area is flat there and rises all at
+        # once above (a cone's flank passes the limit together), so bisect, not creep.
+        crept = crept + 1 if w < 0.25 else 0
+        x = a + (b - a) * (0.5 if crept > 1 else min(max(w, 0.1), 0.9))
         if ok(x, spacing, iterations):
             a, fa = x, min(tried[-1][1] - target, 0.0)
             fb, side = (fb / 2 if side == -1 else fb), -1
