@@ -150,3 +150,16 @@ def test_the_least_smoothing_is_found_to_a_quarter_in_a_few_solves(forms_from, l
         return smooth >= forms_from
     assert least_smoothing(forms, 1.0, cap_mm=10.0) == least
     assert len(tried) <= 4
+
+
+def test_plan_fit_prints_the_smoothing_solves_beside_the_scales(capsys):
+    from hostd.commands.plan import _print_fit
+    _print_fit({"tried": [[1.0, 0.3, 0], [0.5, 0.01, 0]], "smooth_tried": [[2.0, 0.05, 0],
+                                                                          [1.5, 0.3, 0]],
+                "min_smooth_mm": 2.0, "max_height_mm": 5.0, "requested_height_mm": 10.0,
+                "applied_scale": 0.5, "solves": 2, "seconds": 3.0, "smooth_seconds": 1.0,
+                "reason": "steep"})
+    out = capsys.readouterr().out
+    assert "smooth_mm" in out and "1.5        30.00 %" in out
+    assert "4 solves in 3.0 s (1.0 s of them smoothing)" in out
+    assert "forms with smooth_mm: 2" in out
