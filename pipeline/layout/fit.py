@@ -193,14 +193,17 @@ def _close_in(ok, tried, a, b, target, steps, spacing, iterations, area_a=None):
         if b - a < 0.03 * b:
             break
         w = -fa / max(fb - fa, 1e-12)
-        # Near the bracket's lower end twice: the area is flat there and rises all at
-        # once above (a cone's flank passes the limit together), so bisect, not creep.
-        crept = crept + 1 if w < 0.25 else 0
+        # Two steps up from near the lower end that both formed: the area is flat there
+        # and rises all at once above (a cone's flank passes the limit together), so
+        # bisect rather than creep up.
+        near = w < 0.25
         x = a + (b - a) * (0.5 if crept > 1 else min(max(w, 0.1), 0.9))
         if ok(x, spacing, iterations):
+            crept = crept + 1 if near else 0
             a, fa = x, min(tried[-1][1] - target, 0.0)
             fb, side = (fb / 2 if side == -1 else fb), -1
         else:
+            crept = 0
             b, fb = x, max(tried[-1][1] - target, 1e-6)
             fa, side = (fa / 2 if side == 1 else fa), 1
     return a, b
