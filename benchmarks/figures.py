@@ -177,12 +177,15 @@ def headline(groups):
     if not models:
         return "No benchmark has been run yet: `python benchmarks/pipeline.py`."
     cond = next((groups[g]["conditions"] for g in ("plan", "terrain") if g in groups), {})
+    runs = sorted({"%s (%s)" % (groups[g]["conditions"].get("commit", "?"),
+                                groups[g]["conditions"].get("date", "?"))
+                   for g in ("plan", "terrain", "methods") if g in groups})
     return "\n".join(_table(models, brief=True) + [
-        "", "%s, one core, commit %s, %s. Rows marked `free` or `isoline` are checked by the "
+        "", "%s, one core, commits %s. Rows marked `free` or `isoline` are checked by the "
         "thin-shell simulation (the free method's relief fitted to the material); the paper's "
         "simulation is the shipped default for the isoline method. Every figure, with its "
-        "conditions: [docs/figures.md](docs/figures.md)." % (
-            cond.get("cpu", "?"), cond.get("commit", "?"), cond.get("date", "?"))])
+        "conditions: [docs/figures.md](docs/figures.md)." % (cond.get("cpu", "?"),
+                                                              ", ".join(runs))])
 
 
 def replace_block(text, body):
