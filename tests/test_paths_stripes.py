@@ -103,3 +103,17 @@ def test_the_smallest_eigenvector_of_a_nearly_degenerate_pair_is_found():
     x = stripes.smallest_eigenvector(sp.csr_matrix(A), mass, -1e-3)
     rayleigh = float(x @ A @ x) / float(x @ (mass * x))
     assert rayleigh == pytest.approx(1.0, rel=2e-3)
+
+
+def test_joining_stripe_pieces_leaves_fewer_traces_and_less_overprint():
+    """Pieces that end facing each other across bare sheet run on as one path: fewer
+    traces, and less hop length over other paths, with the paths themselves unchanged."""
+    xy, faces = _disk()
+    d = _field("two_half", xy[faces].mean(axis=1))
+    sigma = np.full(len(faces), 0.2)
+    walked = stripe_toolpaths(xy, faces, d, sigma, WIDTH, join_factor=0.0).info
+    joined = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    assert joined["traces"] < walked["traces"], (joined["traces"], walked["traces"])
+    assert joined["hop_overprint_mm"] < walked["hop_overprint_mm"]
+    for key in ("coverage", "overlap", "spacing_mm"):
+        assert joined[key] == walked[key]

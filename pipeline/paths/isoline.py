@@ -281,9 +281,9 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
     outline = _outline_polygon(xy, loop)
     footprint = outline.buffer(0.25 * pw)
     shapely.prepare(footprint)
-    traces, tsig = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
-                                 merge_sigma, footprint)
-    info = path_metrics(traces, tsig, raw, xy, faces, level, u, outline, pw)
+    traces, tsig, hops = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
+                                       merge_sigma, footprint)
+    info = path_metrics(traces, tsig, raw, xy, faces, level, u, outline, pw, hops=hops)
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
 
 
@@ -314,6 +314,8 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     go, outside in); otherwise the nearest unvisited path. Arcs that meet the
     edge at a slant end further apart than a path width: a hop of up to three
     link lengths still joins them where it runs inside the sheet (along its edge).
+
+    Returns (traces, sigma per segment, hops: (h, 2, 2) mm, the extruded joins).
     """
     import shapely
 
@@ -328,7 +330,7 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     index = np.concatenate(index)
     tree = cKDTree(entries)
     visited = np.zeros(len(chains), bool)
-    traces, tsig = [], []
+    traces, tsig, hops = [], [], []
     cur_p, cur_s = None, None
     # Start at the outermost path nearest the front-left corner.
     c0 = int(owner[np.argmin(entries[:, 0] + entries[:, 1])])
@@ -349,6 +351,7 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
                 shapely.LineString([cur_p[-1], p[0]]))))
         if linked:
             hop = 0.5 * (cur_s[-1] + sg[0]) if len(cur_s) and len(sg) else float(sg[0])
+            hops.append((cur_p[-1], p[0]))
             cur_p = np.vstack([cur_p, p])
             cur_s = np.concatenate([cur_s, [hop], sg])
         else:
@@ -368,7 +371,7 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     if cur_p is not None:
         traces.append(cur_p)
         tsig.append(cur_s)
-    return traces, tsig
+    return traces, tsig, np.asarray(hops, float).reshape(-1, 2, 2)
 
 
 def _nearest_in(chains, cands, at, ahead_mm=0.0):

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from pipeline.geometry import hat_gradients
 
 
-def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
+def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None):
     """The report's ``toolpath`` section.
 
     Parameters
@@ -23,6 +23,8 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
     level, u : (n,) float, isoline value and path index per vertex (None: paths not
         from isolines, no ``isoline_angle_deg``)
     poly : shapely polygon, the flat outline; pw : float, path width mm
+    hops : (h, 2, 2) float, mm, the extruded joins between the paths of ``raw`` inside
+        the traces (None: not known, no ``hop_mm``)
     """
     seg_count = sum(len(s) for s in tsig)
     length = 0.0
@@ -51,6 +53,7 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
     has = other.any(axis=1)
     spacing = d[has, np.argmax(other[has], axis=1)]
     covered, twice = coverage_grid(samples, label, xy, poly, pw)
+    hop = {} if hops is None else hop_figures(hops, samples, label, tree, pw)
     pct = np.percentile(spacing, [5, 50, 95]) if len(spacing) else [np.nan] * 3
     return {"traces": len(traces), "segments": int(seg_count), "length_mm": length,
             "travel_moves": max(len(traces) - 1, 0), "sharp_turns": sharp,
@@ -58,9 +61,30 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw):
                            "p95": float(pct[2])},
             "coverage": float(covered.mean()) if len(covered) else 0.0,
             "overlap": float(twice.mean()) if len(covered) else 0.0,
-            "loops_and_arcs": len(raw),
+            "loops_and_arcs": len(raw), **hop,
             **({} if level is None else {"isoline_angle_deg": dict(zip(("p50", "p95"), (
                 _weighted_percentiles(*isoline_angles(xy, faces, level, u), [50, 95]))))})}
+
+
+def hop_figures(hops, samples, label, tree, pw):
+    """``hop_mm``: the extruded length of the hops that join paths inside traces, and
+    ``hop_overprint_mm``: how much of it runs over a third path (its centre line within
+    half a path width of a path other than the two it joins), which coverage and
+    overlap, taken over the paths alone, do not see.
+
+    hops : (h, 2, 2) mm; samples, label, tree : points along the paths, the path of each
+    and their KD-tree."""
+    from pipeline.paths.links import over_others
+
+    hops = np.asarray(hops, float).reshape(-1, 2, 2)
+    if not len(hops):
+        return {"hop_mm": 0.0, "hop_overprint_mm": 0.0}
+    # The joined paths: those the hop's two ends lie on (each end is a path's point).
+    _, own = tree.query(hops.reshape(-1, 2))
+    own = label[own].reshape(-1, 2)
+    over = over_others(hops[:, 0], hops[:, 1], own[:, 0], own[:, 1], samples, label, tree, pw)
+    return {"hop_mm": float(np.linalg.norm(hops[:, 1] - hops[:, 0], axis=1).sum()),
+            "hop_overprint_mm": float(over.sum())}
 
 
 def coverage_grid(samples, label, xy, poly, pw):

@@ -18,6 +18,11 @@ from scipy.sparse.linalg import splu
 from pipeline.geometry import signed_areas_2d, unique_edges
 
 
+# Stripe pieces whose ends face each other across up to this many path widths of bare
+# sheet are joined into one path (the hop prints over no other path).
+JOIN_FACTOR = 4.0
+
+
 def vertex_line_field(xy, faces, normal):
     """Per-vertex unit line field from per-face ``normal`` ((m, 2) unit): area-weighted
     mean of the doubled angles. Returns (n, 2)."""
@@ -251,13 +256,16 @@ def _vertex_areas(xy, faces):
 
 
 def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
-                     merge_sigma=0.005, link_factor=1.6):
-    """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: the stripes chained
-    into traces by short hops, as the isoline method's paths are, each segment carrying
-    the shrink of the triangle it crosses; the report adds ``direction_angle_deg``."""
+                     merge_sigma=0.005, link_factor=1.6, join_factor=JOIN_FACTOR, over_factor=0.0):
+    """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
+    ends face each other across up to ``join_factor`` path widths of bare sheet joined
+    first (:mod:`pipeline.paths.links`), then chained into traces by short hops, as the
+    isoline method's paths are; each segment carries the shrink of the triangle it
+    crosses; the report adds ``direction_angle_deg``."""
     import shapely
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
+    from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
     xy = np.asarray(xy, dtype=float)
     chains, ok = plan_stripes(xy, faces, direction, sigma, width_mm)
@@ -265,10 +273,14 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     outline = _outline_polygon(xy, boundary_loop(faces))
     footprint = outline.buffer(0.25 * width_mm)
     shapely.prepare(footprint)
-    children = [[] for _ in chains]
-    traces, tsig = _order_traces(chains, children, width_mm * link_factor, merge_angle_deg,
-                                 merge_sigma, footprint)
-    info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm)
+    samples, label, tree = path_samples([p for p, _ in raw], width_mm)
+    joins = join_ends(chains, width_mm, join_factor * width_mm, footprint, samples, label, tree,
+                      over_mm=over_factor * width_mm)
+    joined, join_hops = merge_joined(chains, joins)
+    traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
+                                       merge_angle_deg, merge_sigma, footprint)
+    info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
+                        hops=np.concatenate([join_hops, hops]))
     ang, length = direction_angles([p for p, _ in raw], xy, faces, direction)
     info["direction_angle_deg"] = dict(zip(("p50", "p95"),
                                            _weighted_percentiles(ang, length, [50, 95])))

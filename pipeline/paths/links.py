@@ -1,0 +1,184 @@
+"""Joining open paths end to end by short extruded hops that print over nothing.
+
+Stripe paths stop where the stripes fork or the direction field turns over (the
+triangle there holds no path) and at every notch of the sheet's edge, so a stripe
+plan has hundreds of pieces whose ends face another piece's end across a small gap.
+A hop is extruded like the paths it joins, so it is only taken where its centre line
+keeps more than half a path width from every other path (it prints over no bead but
+those of the two paths it joins) and stays on the sheet. Among such hops the shortest
+are taken first, each end at most once (a greedy matching), which leaves fewer loose
+ends than walking from piece to nearest piece.
+"""
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pipeline.paths.stats import _densify
+
+# Neighbours looked at per hop sample: enough that the two joined paths' own samples
+# (a quarter width apart) cannot hide a third path within half a width.
+_NEIGHBOURS = 16
+
+
+def path_samples(paths, pw):
+    """Points along every path at most a quarter path width apart, the path each lies
+    on, and a tree of them. ``paths``: list of (k, 2) mm. Returns ((q, 2), (q,), tree)."""
+    pts = [_densify(np.asarray(p, float), pw / 4) for p in paths]
+    label = np.repeat(np.arange(len(pts)), [len(q) for q in pts])
+    samples = np.concatenate(pts) if pts else np.zeros((0, 2))
+    return samples, label, cKDTree(samples)
+
+
+def over_others(a, b, own_a, own_b, samples, label, tree, pw):
+    """For hops from ``a`` to ``b`` ((h, 2) mm) joining paths ``own_a`` and ``own_b``
+    ((h,) int, -1 for none), the length (mm, (h,)) of each whose centre line lies within
+    half a path width of another path (``samples``, ``label``, ``tree`` of
+    :func:`path_samples`)."""
+    h = len(a)
+    if h == 0:
+        return np.zeros(0)
+    length = np.linalg.norm(b - a, axis=1)
+    n = np.maximum(np.ceil(length / (pw / 4)).astype(np.int64), 1)
+    hop = np.repeat(np.arange(h), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[hop]
+    q = a[hop] + (b - a)[hop] * t[:, None]
+    k = min(_NEIGHBOURS, len(samples))
+    d, i = tree.query(q, k=k, distance_upper_bound=0.5 * pw)
+    d, i = d.reshape(len(q), k), i.reshape(len(q), k)
+    near = np.isfinite(d)
+    lab = label[np.minimum(i, len(label) - 1)]
+    other = near & (lab != own_a[hop][:, None]) & (lab != own_b[hop][:, None])
+    # All neighbours found and all the hop's own: a third path could lie beyond them.
+    crowded = near[:, -1] & ~other.any(axis=1)
+    bad = other.any(axis=1) | crowded
+    return np.bincount(hop, bad * (length / n)[hop], h)
+
+
+def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
+    """Pairs of open-path ends to join by a hop: shortest first, each end once, no ring.
+
+    chains : list of ((k, 2) points mm, (k - 1,) sigma, closed); ends are numbered
+    ``2 c`` (first point of chain ``c``) and ``2 c + 1`` (last point)
+    max_mm : longest hop; footprint : prepared shapely polygon the hop stays in
+    samples, label, tree : :func:`path_samples` of the chains, labelled by chain
+
+    Returns (j, 2) int, the joined ends.
+    """
+    import shapely
+
+    open_ = np.array([not closed and len(p) >= 2 for p, _, closed in chains], bool)
+    cid = np.flatnonzero(open_)
+    if len(cid) < 2:
+        return np.zeros((0, 2), np.int64)
+    ends = np.concatenate([np.stack([chains[c][0][0], chains[c][0][-1]]) for c in cid])
+    end_id = (2 * cid[:, None] + np.arange(2)).ravel()
+    pairs = cKDTree(ends).query_pairs(max_mm, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros((0, 2), np.int64)
+    ea, eb = end_id[pairs[:, 0]], end_id[pairs[:, 1]]
+    keep = ea // 2 != eb // 2
+    pairs, ea, eb = pairs[keep], ea[keep], eb[keep]
+    a, b = ends[pairs[:, 0]], ends[pairs[:, 1]]
+    over = over_others(a, b, ea // 2, eb // 2, samples, label, tree, pw)
+    mid = (a + b) / 2
+    clear = (over <= over_mm) & shapely.contains_xy(footprint, mid[:, 0], mid[:, 1])
+    a, b, ea, eb, over = a[clear], b[clear], ea[clear], eb[clear], over[clear]
+    inside = shapely.contains(footprint, shapely.linestrings(np.stack([a, b], axis=1)))
+    a, b, ea, eb, over = a[inside], b[inside], ea[inside], eb[inside], over[inside]
+    # A turn costs two widths: across a gap, running straight on beats a U-turn.
+    cost = np.linalg.norm(b - a, axis=1) + 2 * pw * _turn(chains, ea, eb, a, b) + 4 * over
+    return _greedy(ea, eb, cost, len(chains))
+
+
+def _turn(chains, ea, eb, a, b):
+    """How far a hop turns away from the paths it joins: 0 where it runs straight on
+    from one into the other, 1 where it crosses over between two side by side (a U-turn),
+2 where it doubles back at both ends."""
+    h = b - a
+    h = h / np.maximum(np.linalg.norm(h, axis=1), 1e-12)[:, None]
+    out_a = _outward(chains, ea)
+    out_b = _outward(chains, eb)
+    return (2 - np.einsum("hc,hc->h", out_a, h) + np.einsum("hc,hc->h", out_b, h)) / 2
+
+
+def _outward(chains, e):
+    """Unit direction in which each path leaves through end ``e``: (h, 2)."""
+    uniq, inv = np.unique(e, return_inverse=True)
+    d = np.empty((len(uniq), 2))
+    for k, end in enumerate(uniq.tolist()):
+        p = chains[end // 2][0]
+        d[k] = p[0] - p[1] if end % 2 == 0 else p[-1] - p[-2]
+    d = d[inv]
+    return d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+
+
+def _greedy(ea, eb, cost, n_chains):
+    """Cheapest joins first; an end joins once and no join closes a ring of pieces (a
+    ring is left by the point it was entered at, which strands more ends than it saves)."""
+    parent = list(range(n_chains))
+
+    def root(c):
+        while parent[c] != c:
+            parent[c] = parent[parent[c]]
+            c = parent[c]
+        return c
+
+    used = set()
+    out = []
+    order = np.argsort(cost, kind="stable")
+    for x, y in zip(ea[order].tolist(), eb[order].tolist()):
+        if x in used or y in used:
+            continue
+        rx, ry = root(x // 2), root(y // 2)
+        if rx == ry:
+            continue
+        parent[rx] = ry
+        used.update((x, y))
+        out.append((x, y))
+    return np.asarray(out, np.int64).reshape(-1, 2)
+
+
+def merge_joined(chains, joins):
+    """The chains with the joined ones run together: list of ((k, 2), (k - 1,), closed),
+    each hop carrying the mean sigma of the two segments it joins (a closed run's last
+    sigma is that of its closing hop), and the hops as (h, 2, 2) mm."""
+    partner = {}
+    for x, y in joins.tolist():
+        partner[x], partner[y] = y, x
+    seen = np.zeros(len(chains), bool)
+    out, hops = [], []
+    loose = [c for c in range(len(chains)) if 2 * c not in partner or 2 * c + 1 not in partner]
+    for c0 in loose + list(range(len(chains))):
+        if seen[c0]:
+            continue
+        # Enter by a loose end so the walk covers the whole run (any end of a ring).
+        end = 2 * c0 if 2 * c0 not in partner or 2 * c0 + 1 in partner else 2 * c0 + 1
+        pts, sig, c = [], [], c0
+        while True:
+            seen[c] = True
+            p, s, _ = chains[c]
+            if end == 2 * c + 1:                  # entered at the last point: walk back
+                p, s = p[::-1], s[::-1]
+            if pts:
+                hops.append((pts[-1][-1], p[0]))
+                sig.append([_mean_end(sig[-1], s)])
+            pts.append(p)
+            sig.append(np.asarray(s, float))
+            leave = end ^ 1
+            if leave not in partner or seen[partner[leave] // 2]:
+                break
+            end = partner[leave]
+            c = end // 2
+        ring = leave in partner                   # back at the first piece
+        if ring:
+            hops.append((pts[-1][-1], pts[0][0]))
+            sig.append([_mean_end(sig[-1], sig[0])])
+        out.append((np.vstack(pts), np.concatenate(sig), chains[c0][2] or ring))
+    return out, np.asarray(hops, float).reshape(-1, 2, 2)
+
+
+def _mean_end(before, after):
+    """Sigma of a hop: the mean of the segments either side of it."""
+    if len(before) and len(after):
+        return 0.5 * (before[-1] + after[0])
+    return before[-1] if len(before) else (after[0] if len(after) else 0.0)

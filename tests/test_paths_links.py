@@ -1,0 +1,58 @@
+"""Joining stripe pieces by hops that print over no other path, and the report's measure
+of the hops that do (``hop_overprint_mm``)."""
+
+import numpy as np
+import shapely
+
+from pipeline.paths.links import join_ends, merge_joined, path_samples
+from pipeline.paths.stats import hop_figures
+
+PW = 0.5
+
+
+def _sheet():
+    sheet = shapely.box(-1, -1, 11, 2)
+    shapely.prepare(sheet)
+    return sheet
+
+
+def _line(y, x0, x1):
+    p = np.c_[np.linspace(x0, x1, 11), np.full(11, y)]
+    return (p, np.full(10, 0.2), False)
+
+
+def _joins(chains):
+    samples, label, tree = path_samples([p for p, _, _ in chains], PW)
+    return join_ends(chains, PW, 4 * PW, _sheet(), samples, label, tree)
+
+
+def test_pieces_broken_across_a_bare_gap_run_on_as_one_path():
+    # Three paths a width apart, each broken by the same 1.2 mm gap (a singular spot).
+    chains = [_line(y, x0, x1) for y in (0.0, PW, 2 * PW) for x0, x1 in ((0, 4.4), (5.6, 10))]
+    joins = _joins(chains)
+    pairs = {tuple(sorted(j)) for j in joins.tolist()}
+    # End 1 of piece 2k (its right end) meets end 0 of piece 2k + 1 across the gap.
+    assert {(4 * k + 1, 4 * k + 2) for k in range(3)} <= pairs
+    # The rest turn over at the sheet's edge, a width apart: one path in all.
+    merged, hops = merge_joined(chains, joins)
+    assert len(merged) == 1 and len(hops) == 5
+    p, sg, closed = merged[0]
+    assert len(p) == 66 and len(sg) == 65 and not closed
+
+
+def test_a_hop_that_would_cross_another_path_is_not_taken():
+    # Ends (4.4, 0) and (5.6, 2 PW) face each other across the middle path.
+    chains = [_line(0.0, 0, 4.4), _line(2 * PW, 5.6, 10), _line(PW, 0, 10)]
+    pairs = {tuple(sorted(j)) for j in _joins(chains).tolist()}
+    assert (1, 2) not in pairs and pairs        # the U-turns at the edge are taken
+
+
+def test_hop_overprint_counts_only_the_length_over_a_third_path():
+    paths = [_line(y, 0, 10)[0] for y in (0.0, PW, 2 * PW)]
+    samples, label, tree = path_samples(paths, PW)
+    beside = hop_figures(np.array([[[10, 0], [10, PW]]]), samples, label, tree, PW)
+    across = hop_figures(np.array([[[10, 0], [10, 2 * PW]]]), samples, label, tree, PW)
+    assert beside == {"hop_mm": PW, "hop_overprint_mm": 0.0}
+    # Over the middle path for the width of its bead.
+    assert across["hop_mm"] == 2 * PW
+    assert abs(across["hop_overprint_mm"] - PW) <= PW / 4
