@@ -187,3 +187,28 @@ def test_ctrl_c_while_connecting_ends_with_the_json_line(sim_printer, tmp_path):
     assert summary["result"] == "cancelled" and summary["lines"] == 0, summary
     assert "before printing" in summary["error"] and "Traceback" not in shown()
     assert elapsed < 10, elapsed    # not after the firmware has booted
+
+
+def test_an_unforeseen_error_still_ends_with_the_json_line(monkeypatch, capsys, tmp_path):
+    """Scripts read the last line: it is written even when the link fails in a way
+    nobody caught (the error then follows as a traceback)."""
+    import argparse
+    from hostd.commands import stream
+
+    class Broken:
+        def __init__(self, *a, **k):
+            pass
+
+        def connect(self):
+            raise RuntimeError("a fault of the link's own")
+
+        def close(self):
+            pass
+    monkeypatch.setattr(stream, "Printer", Broken)
+    args = argparse.Namespace(file=str(tmp_path / "x.gcode"), port="sim://", baud=115200,
+                              ping_pong=False, ok_timeout=5.0, open_timeout=5.0,
+                              no_progress=True)
+    with pytest.raises(RuntimeError):
+        stream.run(args)
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["result"] == "error"

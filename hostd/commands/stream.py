@@ -63,9 +63,13 @@ def run(args):
         summary.update(result="cancelled", error="interrupted " + when)
         print("\nhostd stream: interrupted %s" % when, file=sys.stderr)
     finally:
-        if printer is not None:
-            printer.close()
-    print(json.dumps(summary), flush=True)
+        # The JSON line is the command's contract with scripts: it is written whatever
+        # ends the stream, even an error nobody foresaw (then followed by its traceback).
+        try:
+            if printer is not None:
+                printer.close()
+        finally:
+            print(json.dumps(summary), flush=True)
     return 0 if summary["result"] == "done" else 1
 
 
