@@ -36,51 +36,53 @@ def add_parser(subparsers):
                        description="Write DIR/calibration.gcode (or one file per plate when "
                                    "the bed is too small for all rectangles), "
                                    "DIR/calibration_layout.svg and DIR/measurements.csv.")
-    p.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
-    p.add_argument("-o", "--out", required=True, metavar="DIR", help="output directory")
+    _common(p, "measurements.csv")
     p.add_argument("--values", type=int, default=11,
                    help="thickness values evenly across the profile's range (default 11)")
     p.add_argument("--repeats", type=int, default=3, help="rectangles per value (default 3)")
     p.add_argument("--plates", type=int, default=None,
                    help="bed loads to spread them over (default: as few as fit)")
     p.add_argument("--gap-mm", type=float, default=3.0, help="gap between rectangles (3 mm)")
-    p.add_argument("--force", action="store_true",
-                   help="overwrite a measurements.csv that already has measurements")
     p.set_defaults(func=run_print)
     f = sub.add_parser("fit", help="fit measured lengths and write an updated profile",
                        description="Fit the shrink curve to a filled-in measurements CSV, print "
                                    "the residuals and the usable shrink range, and write an "
                                    "updated copy of the profile.")
     f.add_argument("measured", metavar="MEASURED.csv")
-    f.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
-    f.add_argument("-o", "--out", required=True, metavar="NEW.yaml",
-                   help="where to write the updated profile (never the original)")
+    _common(f)
     f.add_argument("--degree", type=int, default=4, help="polynomial degree (paper: 4)")
-    f.add_argument("--force", action="store_true", help="overwrite NEW.yaml if it exists")
     f.set_defaults(func=run_fit)
     b = sub.add_parser("bilayer", help="write G-code for bilayer strips and a CSV template",
                        description="Write DIR/bilayer.gcode: strips whose lower layers are "
                                    "thinner than their upper ones by a few differences (one "
                                    "with none), DIR/bilayer_layout.svg and DIR/bilayer.csv.")
-    b.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
-    b.add_argument("-o", "--out", required=True, metavar="DIR", help="output directory")
+    _common(b, "bilayer.csv")
     b.add_argument("--values", type=int, default=5, help="thickness differences (default 5)")
     b.add_argument("--repeats", type=int, default=2, help="strips per difference (default 2)")
-    b.add_argument("--force", action="store_true",
-                   help="overwrite a bilayer.csv that already has measurements")
     b.set_defaults(func=run_bilayer)
     bf = sub.add_parser("bilayer-fit", help="fit the bilayer constant from measured strips",
                         description="Fit c of kappa = c (sigma_bottom - sigma_top) / h to the "
                                     "measured curl of the strips and write an updated copy of "
                                     "the profile with it (curvature.bilayer_c).")
     bf.add_argument("measured", metavar="BILAYER.csv")
-    bf.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
-    bf.add_argument("-o", "--out", required=True, metavar="NEW.yaml",
-                    help="where to write the updated profile (never the original)")
-    bf.add_argument("--force", action="store_true", help="overwrite NEW.yaml if it exists")
+    _common(bf)
     bf.set_defaults(func=run_bilayer_fit)
     parser.set_defaults(func=lambda args: _usage(parser))
     return parser
+
+
+def _common(p, csv_name=None):
+    """--profile, -o and --force: a step that writes a folder (with ``csv_name`` to fill
+    in) or, without one, a step that writes a new profile."""
+    p.add_argument("--profile", required=True, help="profile name or path to a .yaml file")
+    if csv_name:
+        p.add_argument("-o", "--out", required=True, metavar="DIR", help="output directory")
+        p.add_argument("--force", action="store_true",
+                       help="overwrite a %s that already has measurements" % csv_name)
+    else:
+        p.add_argument("-o", "--out", required=True, metavar="NEW.yaml",
+                       help="where to write the updated profile (never the original)")
+        p.add_argument("--force", action="store_true", help="overwrite NEW.yaml if it exists")
 
 
 def _usage(parser):

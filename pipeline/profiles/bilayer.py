@@ -9,13 +9,12 @@ the sigmas read from the profile's shrink curve. The plan's curvature program us
 """
 
 import csv
-import io
 from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.profiles.calibration import (CalibrationError, layout_plates, rectangle_trace,
-                                           specimen_label)
+from pipeline.profiles.calibration import (CalibrationError, csv_text, layout_plates,
+                                           rectangle_trace, specimen_label)
 
 LENGTH_MM = 60.0
 WIDTH_MM = 10.0
@@ -82,13 +81,8 @@ def template(specimens, pair_of, profile_name):
         "# 4. hostd calibrate bilayer-fit bilayer.csv --profile %s -o %s-bilayer.yaml"
         % (profile_name, profile_name),
     ]
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(COLUMNS)
-    for s in specimens:
-        bottom, top = pair_of[s.id]
-        w.writerow([s.id, "%g" % bottom, "%g" % top, s.repeat, "", ""])
-    return "\n".join(head) + "\n" + buf.getvalue()
+    return csv_text(head, COLUMNS, [[s.id, "%g" % pair_of[s.id][0], "%g" % pair_of[s.id][1],
+                                     s.repeat, "", ""] for s in specimens])
 
 
 @dataclass

@@ -227,12 +227,17 @@ def measurements_template(specimens, profile_name, layers, gcode_names=("calibra
         "# 4. hostd calibrate fit measurements.csv --profile %s -o %s-calibrated.yaml"
         % (profile_name, profile_name),
     ]
+    return csv_text(head, COLUMNS, [[s.id, "%g" % s.thickness_mm, s.repeat, "%g" % s.length_mm,
+                                     ""] for s in specimens])
+
+
+def csv_text(comments, columns, rows):
+    """A measurements file: ``#`` instruction lines, the header, one row per specimen."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(COLUMNS)
-    for s in specimens:
-        w.writerow([s.id, "%g" % s.thickness_mm, s.repeat, "%g" % s.length_mm, ""])
-    return "\n".join(head) + "\n" + buf.getvalue()
+    w.writerow(columns)
+    w.writerows(rows)
+    return "\n".join(comments) + "\n" + buf.getvalue()
 
 
 # ------------------------------------------------------------------------ fit
