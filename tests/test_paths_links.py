@@ -56,3 +56,18 @@ def test_hop_overprint_counts_only_the_length_over_a_third_path():
     # Over the middle path for the width of its bead.
     assert across["hop_mm"] == 2 * PW
     assert abs(across["hop_overprint_mm"] - PW) <= PW / 4
+
+
+def test_many_hops_are_measured_in_chunks_alike(monkeypatch):
+    """Hops measured a chunk at a time (as on a real tile) give what all at once gives."""
+    from pipeline.paths import links
+    rng = np.random.default_rng(4)
+    paths = [np.c_[np.linspace(0, 40, 81), np.full(81, y)] for y in np.arange(0, 10, 0.5)]
+    samples, label, tree = links.path_samples(paths, 0.5)
+    a = rng.uniform(0, 40, (300, 2)) * [1, 0.25]
+    b = a + rng.normal(0, 2, (300, 2))
+    own = np.full(300, -1)
+    whole = links.over_others(a, b, own, own, samples, label, tree, 0.5)
+    monkeypatch.setattr(links, "_CHUNK_POINTS", 50)
+    assert np.allclose(links.over_others(a, b, own, own, samples, label, tree, 0.5), whole)
+    assert whole.sum() > 0

@@ -17,6 +17,7 @@ from pipeline.paths.stats import _densify
 
 # Neighbours looked at per hop sample: enough that the two joined paths' own samples
 # (a quarter width apart) cannot hide a third path within half a width.
+_CHUNK_POINTS = 100_000
 _NEIGHBOURS = 16
 
 
@@ -39,6 +40,13 @@ def over_others(a, b, own_a, own_b, samples, label, tree, pw):
         return np.zeros(0)
     length = np.linalg.norm(b - a, axis=1)
     n = np.maximum(np.ceil(length / (pw / 4)).astype(np.int64), 1)
+    # Thousands of candidate hops on a real tile: their sample points and neighbour
+    # lists, all at once, took 600 MB; a chunk at a time keeps the peak small.
+    cut = np.searchsorted(np.cumsum(n), np.arange(_CHUNK_POINTS, n.sum(), _CHUNK_POINTS))
+    cut = np.unique(cut[(cut > 0) & (cut < h)])
+    if len(cut):
+        return np.concatenate([over_others(a[p], b[p], own_a[p], own_b[p], samples, label,
+                                           tree, pw) for p in np.split(np.arange(h), cut)])
     hop = np.repeat(np.arange(h), n)
     t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[hop]
     q = a[hop] + (b - a)[hop] * t[:, None]
