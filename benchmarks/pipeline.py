@@ -72,13 +72,13 @@ from pipeline.profiles.profile import load_profile
 from hostd import planner
 path, outdir = sys.argv[1], sys.argv[2]
 method = sys.argv[3] if len(sys.argv) > 3 else None
-fit = "fit" in sys.argv[4:]
+force_fit = "fit" in sys.argv[4:]
 prof = load_profile("generic-0.5mm")
 if "shell" in sys.argv[4:]:
     import dataclasses
     prof = dataclasses.replace(prof, flatten=dataclasses.replace(prof.flatten, simulation="shell"))
 t = time.perf_counter()
-plan = planner.run(path, prof, outdir, method=method, force_fit=fit)
+plan = planner.run(path, prof, outdir, method=method, force_fit=force_fit)
 wall = time.perf_counter() - t
 r = plan.report
 ts = r["timing_s"]
