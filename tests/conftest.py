@@ -48,3 +48,18 @@ def reference_toolpaths(name, path_width_mm=0.48):
     tp = plan_toolpaths(flat.xy, mesh.faces, mesh.vertex_level, mesh.printing_edges,
                         flat.sigma, path_width_mm)
     return mesh, flat, tp
+
+
+@pytest.fixture(scope="module")
+def dome(tmp_path_factory):
+    """A small dome drop file with its sidecar, for the daemon's end-to-end tests."""
+    from daemon_helpers import write_dome
+    return write_dome(tmp_path_factory.mktemp("inputs") / "dome.npy")
+
+
+@pytest.fixture
+def pty_sim():
+    """(simulator, port path): a simulated printer on a real pty in this process."""
+    from daemon_helpers import pty_simulator
+    with pty_simulator() as sim_and_port:
+        yield sim_and_port

@@ -4,10 +4,12 @@ import contextlib
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -235,3 +237,29 @@ def ticking_daemon(tmp_path, time_scale, **extra):
     finally:
         stop.set()
         runner.join(30)
+
+
+def drop(src, drop_dir, name):
+    """Copy ``src`` (and sidecar) into the drop folder the way a careful client does."""
+    drop_dir.mkdir(parents=True, exist_ok=True)
+    side = src.with_name(src.stem + ".yaml")
+    if side.exists():
+        shutil.copy(side, drop_dir / (Path(name).stem + ".yaml"))
+    shutil.copy(src, drop_dir / (name + ".part"))
+    os.rename(drop_dir / (name + ".part"), drop_dir / name)
+
+
+@contextlib.contextmanager
+def pty_simulator():
+    """A simulator on a real pty in this process (its executed commands are readable):
+    yields (simulator, port path)."""
+    from hostd.printer.sim import Simulator
+    from hostd.printer.simconfig import SimConfig
+    folder = tempfile.mkdtemp(prefix="hostd-e2e-")
+    sim = Simulator(SimConfig(**FAST_SIM), link_path=os.path.join(folder, "printer"))
+    path = sim.start()
+    try:
+        yield sim, path
+    finally:
+        sim.stop()
+        shutil.rmtree(folder, ignore_errors=True)

@@ -335,3 +335,29 @@ def free_sheet(hf, spacing_mm, programmed=True):
     return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
                           directional_rest(flat.xy, mesh.faces, flat.direction, sigma), thick,
                           theta_rest=theta, pop=0.0)
+
+
+# Mesh-refinement studies run on 60 mm models: meshed every 0.9 mm they have the plan's
+# relative resolution of a 100 mm model every 1.5 mm, coarser than the shipped
+# profiles, so a pass is on the safe side.
+REFINE_SIZE_MM = 60.0
+REFINE_SPACING_MM = 0.9
+REFINE_SHAPES = {
+    "dome": lambda: shapes.dome(REFINE_SIZE_MM, REFINE_SIZE_MM * 25 / 120, pixel_mm=0.2),
+    "monkey_saddle": lambda: shapes.monkey_saddle(REFINE_SIZE_MM, REFINE_SIZE_MM * 22 / 136,
+                                                  pixel_mm=0.2),
+    "starfish": lambda: shapes.starfish(REFINE_SIZE_MM, REFINE_SIZE_MM * 33.4 / 175,
+                                        pixel_mm=0.2),
+}
+
+
+def refines_within(sheet, shape, tolerance=0.10):
+    """Mean displacements (coarse, fine) of ``sheet(hf, spacing_mm)`` on a refinement
+    shape at the study's spacing and half of it; asserts they agree within ``tolerance``."""
+    hf = REFINE_SHAPES[shape]()
+    coarse, fine = (sheet(hf, s).mean_displacement_mm
+                    for s in (REFINE_SPACING_MM, REFINE_SPACING_MM / 2))
+    assert fine > 0
+    assert abs(coarse - fine) < tolerance * fine, (coarse, fine)
+    return coarse, fine
+

@@ -230,7 +230,7 @@ def test_gradient_matches_finite_differences_of_the_energy():
 def test_lbfgs_keeps_energy_monotone():
     """The forward simulation's solver never raises the energy (its line
     search backtracks instead); how far it gets on soft modes is tested in
-    ``test_simulate.py``."""
+    ``test_simulate*.py``."""
     mesh = reference_mesh("saddle")
     S = _system(mesh, seed=5)
     X0 = mesh.vertices.T + RNG.normal(0, 1.0, mesh.vertices.T.shape)
