@@ -105,7 +105,7 @@ def plan_result(plan):
     folds, or the relief asked for cannot form) fails its job with the reasons; its
     outputs stay for a person. A plan outside the profile's printable limits is ready,
     and the daemon holds it for a person's decision (read from its report)."""
-    from pipeline.plan import BLOCKING
+    from pipeline.problems import BLOCKING
     if not plan.blocked:
         return {"ok": True}
     worst = next(p for p in plan.problems if p["code"] in BLOCKING)

@@ -171,7 +171,7 @@ def test_layout_problems_name_the_fix_that_helps_and_split_the_invalid_edges():
     invalid-edge problem says how many edges would have to stretch and how many
     shrink too much, since the two have different fixes."""
     from types import SimpleNamespace
-    from pipeline.plan import FOLD_LIMIT, layout_problems
+    from pipeline.problems import FOLD_LIMIT, layout_problems
     from pipeline.profiles.profile import load_profile
     lim = load_profile("generic-0.5mm").shrink_limits
     sigma = np.concatenate([np.full(70, 0.1), np.full(20, -0.05), np.full(10, lim.s_max + 0.1)])
@@ -197,7 +197,8 @@ def test_a_simulation_still_moving_is_a_warning_not_a_verdict():
     """A plan whose sheet did not come to rest says so (its displacement is
     where the sheet stood), without making the plan unprintable."""
     from types import SimpleNamespace
-    from pipeline.plan import Plan, simulation_problems
+    from pipeline.plan import Plan
+    from pipeline.problems import simulation_problems
     moving = SimpleNamespace(converged=False, iterations=600, mean_displacement_mm=3.96)
     (w,) = simulation_problems(moving)
     assert w["code"] == "simulate.not_at_rest"
@@ -208,7 +209,7 @@ def test_a_simulation_still_moving_is_a_warning_not_a_verdict():
 
 
 def test_fold_area_fraction_measures_flipped_area():
-    from pipeline.plan import fold_area_fraction
+    from pipeline.problems import fold_area_fraction
     xy = np.array([[0, 0], [1, 0], [0, 1], [1, 1.0]])
     faces = np.array([[0, 1, 2], [1, 3, 2]])
     assert fold_area_fraction(xy, faces) == 0.0
