@@ -63,3 +63,12 @@ def pty_sim():
     from daemon_helpers import pty_simulator
     with pty_simulator() as sim_and_port:
         yield sim_and_port
+
+
+def pytest_collection_modifyitems(items):
+    """Files holding slow tests run first. The two workers take whole files in the
+    order collected; a minute-long file taken last keeps one of them busy while the
+    other idles. Tests keep their order within a file."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    order = {id(item): k for k, item in enumerate(items)}
+    items.sort(key=lambda item: (item.path not in slow_files, order[id(item)]))

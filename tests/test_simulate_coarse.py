@@ -8,6 +8,7 @@ from pipeline.simulation.forward import simulate
 from meshes import longest_diameter
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,size", [
     ("dome", {"diameter_mm": 80.0, "height_mm": 18.0}),
     ("saddle", {"length_mm": 80.0, "width_mm": 60.0, "height_mm": 16.0})])
