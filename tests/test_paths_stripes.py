@@ -117,3 +117,14 @@ def test_joining_stripe_pieces_leaves_fewer_traces_and_less_overprint():
     assert joined["hop_overprint_mm"] < walked["hop_overprint_mm"]
     for key in ("coverage", "overlap", "spacing_mm"):
         assert joined[key] == walked[key]
+
+
+def test_pathless_triangles_are_told_apart_by_cause():
+    """Around a +1/2 singular point the line field turns over (a branch); a field that
+    only turns has no singular point, and its paths end only where the stripes fork
+    (the turn has curl, so their spacing cannot stay even without)."""
+    two_half, turn = _plan("two_half"), _plan("turn")
+    assert two_half["branch_triangles"] > 0
+    assert turn["branch_triangles"] == 0 and turn["fork_triangles"] > 0
+    for info in (two_half, turn):
+        assert info["fork_triangles"] + info["branch_triangles"] == info["pathless_triangles"]

@@ -22,6 +22,9 @@ from pipeline.geometry import signed_areas_2d, unique_edges
 # sheet are joined into one path (the hop prints over no other path).
 JOIN_FACTOR = 4.0
 
+# Why a triangle holds no path (see :func:`corner_phases`).
+FORK, BRANCH = 1, 2
+
 
 def vertex_line_field(xy, faces, normal):
     """Per-vertex unit line field from per-face ``normal`` ((m, 2) unit): area-weighted
@@ -95,9 +98,10 @@ def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
 
 def corner_phases(xy, faces, phase, X, width_mm):
     """Each triangle's three corner values of the path index (phase / 2 pi), unwrapped
-    in the triangle's own orientation of the line field: (m, 3), and a mask of the
-    triangles that hold paths: no branch of the line field, and no winding of the phase
-    (a fork of the stripes, where one path ends between two)."""
+    in the triangle's own orientation of the line field: (m, 3), and why a triangle
+    holds no path ((m,) int8): 0 it holds paths, ``FORK`` the phase winds around it (a
+    fork of the stripes, where one path ends between two), ``BRANCH`` the line field
+    turns over in it."""
     xy = np.asarray(xy, dtype=float)
     Xf = X[faces]                                            # (m, 3, 2)
     sign = np.where(np.einsum("mkc,mc->mk", Xf, Xf[:, 0]) < 0, -1.0, 1.0)
@@ -117,7 +121,7 @@ def corner_phases(xy, faces, phase, X, width_mm):
     u = (u + ph[:, :1]) / (2 * np.pi)
     branch = np.einsum("mkc,mkc->mk", Xf, np.roll(Xf, -1, axis=1)).prod(axis=1) < 0
     winding = np.abs(np.rint(total / (2 * np.pi))) > 0
-    return u, ~(branch | winding)
+    return u, np.where(branch, BRANCH, np.where(winding, FORK, 0)).astype(np.int8)
 
 
 def stripe_segments(xy, faces, u, ok):
@@ -196,13 +200,13 @@ def chain(keys):
 def plan_stripes(xy, faces, direction, sigma, width_mm):
     """Paths along ``direction`` ((m, 2) unit per face), a path width apart.
 
-    Returns (chains: list of ((k, 2) points mm, (k - 1,) sigma, closed), mask of the
-    triangles that hold paths)."""
+    Returns (chains: list of ((k, 2) points mm, (k - 1,) sigma, closed), why each
+    triangle holds no path: (m,) int8 of :func:`corner_phases`)."""
     d = np.asarray(direction, dtype=float)
     normal = np.stack([-d[:, 1], d[:, 0]], axis=1)
     phase, X = stripe_phase(xy, faces, normal, width_mm)
-    u, ok = corner_phases(xy, faces, phase, X, width_mm)
-    pts, keys, face = stripe_segments(xy, faces, u, ok)
+    u, pathless = corner_phases(xy, faces, phase, X, width_mm)
+    pts, keys, face = stripe_segments(xy, faces, u, pathless == 0)
     chains = []
     for steps, closed in chain(keys):
         seq = [pts[seg, entry] for seg, entry in steps] + [pts[steps[-1][0], 1 - steps[-1][1]]]
@@ -211,7 +215,7 @@ def plan_stripes(xy, faces, direction, sigma, width_mm):
         if closed:
             p, sg = p[:-1], sg
         chains.append((p, sg, closed))
-    return chains, ok
+    return chains, pathless
 
 
 def direction_angles(points, xy, faces, direction):
@@ -268,7 +272,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
     xy = np.asarray(xy, dtype=float)
-    chains, ok = plan_stripes(xy, faces, direction, sigma, width_mm)
+    chains, pathless = plan_stripes(xy, faces, direction, sigma, width_mm)
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
     outline = _outline_polygon(xy, boundary_loop(faces))
     footprint = outline.buffer(0.25 * width_mm)
@@ -284,5 +288,9 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     ang, length = direction_angles([p for p, _ in raw], xy, faces, direction)
     info["direction_angle_deg"] = dict(zip(("p50", "p95"),
                                            _weighted_percentiles(ang, length, [50, 95])))
-    info["pathless_triangles"] = int((~ok).sum())
+    # Which cure a bare patch needs: forks come from a phase the triangles cannot
+    # resolve (or a field with curl), branches from the field's own singular points.
+    info["pathless_triangles"] = int((pathless > 0).sum())
+    info["fork_triangles"] = int((pathless == FORK).sum())
+    info["branch_triangles"] = int((pathless == BRANCH).sum())
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
