@@ -151,3 +151,16 @@ def test_merged_shrink_is_the_length_weighted_mean():
     p, s = merge_collinear(pts, np.array([0.100, 0.104, 0.2]), 2.0, 0.005)
     assert np.array_equal(p, pts[[0, 2, 3]])
     assert s == pytest.approx([0.103, 0.2], abs=1e-12)
+
+
+def test_path_samples_of_all_paths_at_once_are_those_of_each_path():
+    """The samples the figures are measured on, made for thousands of stripe pieces in
+    one pass: the same points, in the same order, as path by path (end points kept)."""
+    from pipeline.paths.stats import _densify, sample_tree
+    rng = np.random.default_rng(0)
+    paths = [np.cumsum(rng.normal(size=(rng.integers(2, 9), 2)), axis=0) for _ in range(40)]
+    samples, label, tree = sample_tree(paths, 0.12)
+    each = [_densify(p, 0.12) for p in paths]
+    assert np.array_equal(samples, np.concatenate(each))
+    assert np.array_equal(label, np.repeat(np.arange(len(paths)), [len(q) for q in each]))
+    assert tree.n == len(samples)

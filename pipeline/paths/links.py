@@ -13,7 +13,7 @@ ends than walking from piece to nearest piece.
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.paths.stats import _densify
+from pipeline.paths.stats import sample_tree
 
 # Neighbours looked at per hop sample: enough that the two joined paths' own samples
 # (a quarter width apart) cannot hide a third path within half a width.
@@ -24,10 +24,7 @@ _NEIGHBOURS = 16
 def path_samples(paths, pw):
     """Points along every path at most a quarter path width apart, the path each lies
     on, and a tree of them. ``paths``: list of (k, 2) mm. Returns ((q, 2), (q,), tree)."""
-    pts = [_densify(np.asarray(p, float), pw / 4) for p in paths]
-    label = np.repeat(np.arange(len(pts)), [len(q) for q in pts])
-    samples = np.concatenate(pts) if pts else np.zeros((0, 2))
-    return samples, label, cKDTree(samples)
+    return sample_tree(paths, pw / 4)
 
 
 def over_others(a, b, own_a, own_b, samples, label, tree, pw):

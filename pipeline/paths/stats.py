@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from pipeline.geometry import hat_gradients
 
 
-def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None):
+def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, samples=None):
     """The report's ``toolpath`` section.
 
     Parameters
@@ -25,6 +25,8 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None):
     poly : shapely polygon, the flat outline; pw : float, path width mm
     hops : (h, 2, 2) float, mm, the extruded joins between the paths of ``raw`` inside
         the traces (None: not known, no ``hop_mm``)
+    samples : (points, path of each, KD-tree) along ``raw`` a quarter width apart, as
+        :func:`pipeline.paths.links.path_samples` gives them (None: made here)
     """
     seg_count = sum(len(s) for s in tsig)
     length = 0.0
@@ -37,15 +39,9 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None):
                 np.linalg.norm(d[:-1], axis=1) * np.linalg.norm(d[1:], axis=1), 1e-12)
             sharp += int((cosang < 0).sum())
     # Spacing: from points on each path to the nearest point of another path.
-    samples, label = [], []
-    for c, (p, _) in enumerate(raw):
-        q = _densify(p, pw / 4)
-        samples.append(q)
-        label.append(np.full(len(q), c))
-    samples = np.concatenate(samples)
-    label = np.concatenate(label)
-    # An unbalanced tree without compacted nodes: a third of the build time, same answers.
-    tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
+    if samples is None:
+        samples = sample_tree([p for p, _ in raw], pw / 4)
+    samples, label, tree = samples
     probe = np.arange(0, len(samples), 3)
     d, i = tree.query(samples[probe], k=14, distance_upper_bound=3 * pw)
     i = np.minimum(i, len(label) - 1)
@@ -198,6 +194,28 @@ def _weighted_percentiles(x, w, q):
     cw = np.cumsum(w[order]) / w.sum()
     idx = np.minimum(np.searchsorted(cw, np.asarray(q) / 100.0), len(x) - 1)
     return [float(v) for v in x[order][idx]]
+
+
+def sample_tree(paths, step):
+    """Points along every path at most ``step`` apart (those of :func:`_densify`, all
+    paths at once: a loop over thousands of stripe pieces took a second), the path each
+    lies on, and a KD-tree of them. Returns ((q, 2), (q,), tree)."""
+    paths = [np.asarray(p, float) for p in paths]
+    if not paths:
+        return np.zeros((0, 2)), np.zeros(0, np.int64), cKDTree(np.zeros((0, 2)))
+    P = np.concatenate(paths)
+    k = np.array([len(p) for p in paths])
+    last = np.cumsum(k) - 1
+    # Each point starts the run to the next; a path's last point stands alone.
+    d = np.vstack([np.diff(P, axis=0), np.zeros((1, 2))])
+    d[last] = 0.0
+    n = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1]) / step).astype(np.int64), 1)
+    seg = np.repeat(np.arange(len(P)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / n[seg]
+    samples = P[seg] + d[seg] * t[:, None]
+    label = np.repeat(np.repeat(np.arange(len(paths)), k), n)
+    # An unbalanced tree without compacted nodes: a third of the build time, same answers.
+    return samples, label, cKDTree(samples, balanced_tree=False, compact_nodes=False)
 
 
 def _densify(points, step):

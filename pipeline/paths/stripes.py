@@ -284,7 +284,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
                                        merge_angle_deg, merge_sigma, footprint)
     info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
-                        hops=np.concatenate([join_hops, hops]))
+                        hops=np.concatenate([join_hops, hops]), samples=(samples, label, tree))
     ang, length = direction_angles([p for p, _ in raw], xy, faces, direction)
     info["direction_angle_deg"] = dict(zip(("p50", "p95"),
                                            _weighted_percentiles(ang, length, [50, 95])))
