@@ -71,3 +71,14 @@ def test_many_hops_are_measured_in_chunks_alike(monkeypatch):
     monkeypatch.setattr(links, "_CHUNK_POINTS", 50)
     assert np.allclose(links.over_others(a, b, own, own, samples, label, tree, 0.5), whole)
     assert whole.sum() > 0
+
+
+def test_a_hop_over_another_path_within_the_budget_is_taken():
+    # Ends (4.4, 0) and (4.4, 2 PW) face each other across a closed path (no ends).
+    ring = np.array([[3.0, PW], [10.0, PW], [10.0, 1.1 * PW], [3.0, 1.1 * PW]])
+    chains = [_line(0.0, 0, 4.4), _line(2 * PW, 2.2, 4.4), (ring, np.full(4, 0.2), True)]
+    samples, label, tree = path_samples([p for p, _, _ in chains], PW)
+    none = join_ends(chains, PW, 4 * PW, _sheet(), samples, label, tree)
+    some = join_ends(chains, PW, 4 * PW, _sheet(), samples, label, tree, over_mm=2 * PW)
+    assert (1, 3) not in {tuple(sorted(j)) for j in none.tolist()}
+    assert (1, 3) in {tuple(sorted(j)) for j in some.tolist()}

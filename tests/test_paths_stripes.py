@@ -128,3 +128,16 @@ def test_pathless_triangles_are_told_apart_by_cause():
     assert turn["branch_triangles"] == 0 and turn["fork_triangles"] > 0
     for info in (two_half, turn):
         assert info["fork_triangles"] + info["branch_triangles"] == info["pathless_triangles"]
+
+
+def test_stripe_pieces_join_across_a_wider_reach_with_a_little_over_print():
+    """Hops of up to six widths that run over another path for at most one width join
+    more pieces than hops of four widths over none; the paths themselves are unchanged."""
+    xy, faces = _disk()
+    d = _field("two_half", xy[faces].mean(axis=1))
+    sigma = np.full(len(faces), 0.2)
+    strict = stripe_toolpaths(xy, faces, d, sigma, WIDTH, join_factor=4.0, over_factor=0.0).info
+    wide = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    assert wide["traces"] < strict["traces"], (wide["traces"], strict["traces"])
+    for key in ("coverage", "overlap", "spacing_mm"):
+        assert wide[key] == strict[key]
