@@ -84,15 +84,19 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     keep = ea // 2 != eb // 2
     pairs, ea, eb = pairs[keep], ea[keep], eb[keep]
     a, b = ends[pairs[:, 0]], ends[pairs[:, 1]]
-    over = over_others(a, b, ea // 2, eb // 2, samples, label, tree, pw)
     mid = (a + b) / 2
-    clear = (over <= over_mm) & shapely.contains_xy(footprint, mid[:, 0], mid[:, 1])
-    a, b, ea, eb, over = a[clear], b[clear], ea[clear], eb[clear], over[clear]
-    inside = shapely.contains(footprint, shapely.linestrings(np.stack([a, b], axis=1)))
-    a, b, ea, eb, over = a[inside], b[inside], ea[inside], eb[inside], over[inside]
+    near = shapely.contains_xy(footprint, mid[:, 0], mid[:, 1])
+    a, b, ea, eb = a[near], b[near], ea[near], eb[near]
     # A turn costs two widths: across a gap, running straight on beats a U-turn.
-    cost = np.linalg.norm(b - a, axis=1) + 2 * pw * _turn(chains, ea, eb, a, b) + 4 * over
-    return _greedy(ea, eb, cost, len(chains))
+    cost = np.linalg.norm(b - a, axis=1) + 2 * pw * _turn(chains, ea, eb, a, b)
+
+    def extra(k):
+        """Over-print cost of hops ``k``, inf where the hop may not be taken."""
+        over = over_others(a[k], b[k], ea[k] // 2, eb[k] // 2, samples, label, tree, pw)
+        inside = shapely.contains(footprint, shapely.linestrings(np.stack([a[k], b[k]], axis=1)))
+        return np.where((over <= over_mm) & inside, 4 * over, np.inf)
+
+    return _greedy(ea, eb, cost, len(chains), extra)
 
 
 def _turn(chains, ea, eb, a, b):
@@ -117,9 +121,16 @@ def _outward(chains, e):
     return d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
 
 
-def _greedy(ea, eb, cost, n_chains):
+def _greedy(ea, eb, cost, n_chains, extra=None):
     """Cheapest joins first; an end joins once and no join closes a ring of pieces (a
-    ring is left by the point it was entered at, which strands more ends than it saves)."""
+    ring is left by the point it was entered at, which strands more ends than it saves).
+
+    ``extra(k)`` adds to ``cost`` of joins ``k`` (inf: not a join); it is dear (the
+    over-print test), so it is asked only of joins whose ends are still free when their
+    cost without it comes up, a batch at a time: most candidates lose an end to a
+    cheaper join first. The answer is the one of adding it to every join up front."""
+    import heapq
+
     parent = list(range(n_chains))
 
     def root(c):
@@ -128,18 +139,42 @@ def _greedy(ea, eb, cost, n_chains):
             c = parent[c]
         return c
 
+    def free(k):
+        x, y = xs[k], ys[k]
+        return x not in used and y not in used and root(x // 2) != root(y // 2)
+
+    xs, ys = ea.tolist(), eb.tolist()
+    order = np.argsort(cost, kind="stable").tolist()
+    base = cost.tolist()
     used = set()
-    out = []
-    order = np.argsort(cost, kind="stable")
-    for x, y in zip(ea[order].tolist(), eb[order].tolist()):
-        if x in used or y in used:
+    out, heap = [], []
+    nxt, batch = 0, 64
+    while True:
+        # Known costs at or below the next unknown one's lower bound go first; ties keep
+        # the candidates' order, as a stable sort of the full costs would.
+        if heap and (nxt >= len(order) or heap[0] <= (base[order[nxt]], order[nxt])):
+            _, k = heapq.heappop(heap)
+            if free(k):
+                x, y = xs[k], ys[k]
+                parent[root(x // 2)] = root(y // 2)
+                used.update((x, y))
+                out.append((x, y))
             continue
-        rx, ry = root(x // 2), root(y // 2)
-        if rx == ry:
-            continue
-        parent[rx] = ry
-        used.update((x, y))
-        out.append((x, y))
+        if nxt >= len(order):
+            break
+        todo = []
+        while nxt < len(order) and len(todo) < batch:
+            if free(order[nxt]):
+                todo.append(order[nxt])
+            nxt += 1
+        batch = min(2 * batch, 4096)
+        if extra is None:
+            add = np.zeros(len(todo))
+        else:
+            add = extra(np.asarray(todo, np.int64)) if todo else np.zeros(0)
+        for k, e in zip(todo, add.tolist()):
+            if e != np.inf:
+                heapq.heappush(heap, (base[k] + e, k))
     return np.asarray(out, np.int64).reshape(-1, 2)
 
 
