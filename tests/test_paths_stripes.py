@@ -131,7 +131,7 @@ def test_pathless_triangles_are_told_apart_by_cause():
 
 
 def test_stripe_pieces_join_across_a_wider_reach_with_a_little_over_print():
-    """Hops of up to six widths that run over another path for at most one width join
+    """Hops of up to ten widths that run over other paths for at most two widths join
     more pieces than hops of four widths over none; the paths themselves are unchanged."""
     xy, faces = _disk()
     d = _field("two_half", xy[faces].mean(axis=1))
