@@ -22,6 +22,12 @@ from pipeline.mechanics.pd import minimize_lbfgs
 from pipeline.mechanics.shell import ShellSystem, face_lengths
 from pipeline.simulation.forward import SimResult, align, pop_profile
 
+# Curvature pairs the shell's L-BFGS keeps. A shell's soft bending modes need a longer
+# memory than the paper's spring sheet: with 20 instead of 5 a real 175 mm tile comes to
+# rest in 458 iterations instead of 672, the starfish in 149 instead of 192 (the same
+# shape within 0.04 mm); more than 20 gains no iterations and costs time per step.
+LBFGS_MEMORY = 20
+
 
 def isoline_rest(mesh, xy, s_min=None, s_max=None):
     """Rest side lengths of the isoline method's sheet after the bath.
@@ -110,7 +116,7 @@ def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None,
         system = ShellSystem(faces, len(V), flat_len + t * (np.asarray(rest_len) - flat_len),
                              thickness_mm, theta_rest)
         X, e, i, converged = minimize_lbfgs(system, X, iterations, rest_tol * diameter,
-                                            callback=callback)
+                                            memory=LBFGS_MEMORY, callback=callback)
         energy += e
         it += i
     P = X.T
