@@ -113,6 +113,7 @@ class ShellSystem:
         self.C = C
         self.Ck = [[np.ascontiguousarray(C[:, k, d]) for d in range(2)] for k in range(3)]
         self.hinges = top.hinges
+        self._hinge_idx = np.ascontiguousarray(top.hinges.T).ravel()
         hf = top.hinge_faces
         area = np.maximum(self.rest_area, _MIN_AREA_FRACTION * float(np.median(self.rest_area)))
         self._e_len = e_len = self._hinge_rest_length(rest_len)
@@ -223,7 +224,7 @@ class ShellSystem:
         D = [(F[d] - R[d]) * self.w_face for d in range(2)]
         e = 0.5 * float(((F[0] - R[0]) * D[0]).sum() + ((F[1] - R[1]) * D[1]).sum())
         # dE/dx_k = w (F - R) C_k (R is the Euclidean projection: no term of its own).
-        N = np.cross(P[1] - P[0], P[2] - P[0], axis=0)          # (3, m), twice the area
+        N = _cross(P[1] - P[0], P[2] - P[0])          # (3, m), twice the area
         norm = np.maximum(np.sqrt((N * N).sum(axis=0)), 1e-300)
         J = norm / (2.0 * self.rest_area)
         wa = ALPHA * self.w_face
@@ -232,7 +233,7 @@ class ShellSystem:
         coef = wa * (1.0 - 1.0 / J) / (2.0 * self.rest_area) / norm
         n = X.shape[1]
         idx = self.faces.T.ravel()
-        dJ = [np.cross(N, P[(k + 2) % 3] - P[(k + 1) % 3], axis=0) * coef for k in range(3)]
+        dJ = [_cross(N, P[(k + 2) % 3] - P[(k + 1) % 3]) * coef for k in range(3)]
         for i in range(3):
             gk = np.concatenate([D[0][i] * C[k][0] + D[1][i] * C[k][1] + dJ[k][i]
                                  for k in range(3)])
@@ -240,19 +241,14 @@ class ShellSystem:
         return e
 
     def _bending(self, X, g):
-        theta, grads = dihedral(X.T, self.hinges, with_gradient=True)
+        theta, grads = _dihedral_components(X, self.hinges, with_gradient=True)
         r = theta - self.theta_rest
         e = 0.5 * float(self.k_hinge @ (r * r))
-        _scatter(g, self.hinges, (self.k_hinge * r)[:, None, None] * grads)
+        kr = self.k_hinge * r
+        n = X.shape[1]
+        for i in range(3):
+            g[i] += np.bincount(self._hinge_idx, np.concatenate([kr * gk[i] for gk in grads]), n)
         return e
-
-
-def _scatter(g, idx, vals):
-    """g[:, idx[f, k]] += vals[f, k, :] for (d, n) g, (f, k) idx, (f, k, d) vals."""
-    flat = idx.ravel()
-    n = g.shape[1]
-    for d in range(g.shape[0]):
-        g[d] += np.bincount(flat, vals[:, :, d].ravel(), n)
 
 
 def nearest_orthonormal(F):
@@ -286,26 +282,46 @@ def dihedral(V, hinges, with_gradient=False):
     faces face up); negative for a valley (the inside of a bowl).
     With ``with_gradient``, also (h, 4, 3): d theta / d position of v0..v3.
     """
-    x0, x1, x2, x3 = (V[hinges[:, k]] for k in range(4))
+    out = _dihedral_components(np.asarray(V, dtype=float).T, hinges, with_gradient)
+    if not with_gradient:
+        return out
+    theta, grads = out
+    return theta, np.stack([gk.T for gk in grads], axis=1)
+
+
+def _dihedral_components(X, hinges, with_gradient=False):
+    """:func:`dihedral` on (3, n) positions, gradients as four (3, h) arrays (one per
+    hinge vertex): component rows keep every product a contiguous pass (four times
+    faster than (h, 3) rows and ``np.cross``)."""
+    x0, x1, x2, x3 = (X[:, hinges[:, k]] for k in range(4))
     e = x1 - x0
-    n0 = np.cross(e, x2 - x0)
-    n1 = np.cross(x3 - x0, e)
-    el = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
-    ne0 = np.maximum(np.einsum("hi,hi->h", n0, n0), 1e-300)
-    ne1 = np.maximum(np.einsum("hi,hi->h", n1, n1), 1e-300)
-    cos = np.einsum("hi,hi->h", n0, n1)
-    sin = np.einsum("hi,hi->h", np.cross(n0, n1), e) / el
-    theta = np.arctan2(sin, cos)
+    n0 = _cross(e, x2 - x0)
+    n1 = _cross(x3 - x0, e)
+    el = np.maximum(np.sqrt(_dot(e, e)), 1e-300)
+    ne0 = np.maximum(_dot(n0, n0), 1e-300)
+    ne1 = np.maximum(_dot(n1, n1), 1e-300)
+    theta = np.arctan2(_dot(_cross(n0, n1), e) / el, _dot(n0, n1))
     if not with_gradient:
         return theta
     # Moving an opposite vertex along its face normal by its height turns the face
     # by one radian; the edge's ends share the opposite vertices' pull by where
     # those project onto the edge, so rigid motions leave theta unchanged.
-    g2 = -(el / ne0)[:, None] * n0
-    g3 = -(el / ne1)[:, None] * n1
+    g2 = -(el / ne0) * n0
+    g3 = -(el / ne1) * n1
     el2 = el * el
-    t2 = np.einsum("hi,hi->h", x2 - x0, e) / el2
-    t3 = np.einsum("hi,hi->h", x3 - x0, e) / el2
-    g0 = -(1.0 - t2)[:, None] * g2 - (1.0 - t3)[:, None] * g3
-    g1 = -t2[:, None] * g2 - t3[:, None] * g3
-    return theta, np.stack([g0, g1, g2, g3], axis=1)
+    t2 = _dot(x2 - x0, e) / el2
+    t3 = _dot(x3 - x0, e) / el2
+    g0 = -(1.0 - t2) * g2 - (1.0 - t3) * g3
+    g1 = -t2 * g2 - t3 * g3
+    return theta, (g0, g1, g2, g3)
+
+
+def _cross(a, b):
+    """Cross products of (3, k) component arrays: (3, k)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
+
+
+def _dot(a, b):
+    """Dot products of (3, k) component arrays: (k,)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
