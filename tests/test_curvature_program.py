@@ -109,3 +109,37 @@ def test_the_program_brings_a_sheet_started_flat_to_its_target(shape, spacing_mm
     assert programmed.converged
     assert programmed.mean_displacement_mm < 0.005 * ld, programmed.mean_displacement_mm
     assert programmed.mean_displacement_mm < 0.5 * plain.mean_displacement_mm
+
+
+@pytest.mark.parametrize("shape", ["dome", "monkey_saddle"])
+def test_the_full_curvature_in_the_layout_frame_gives_the_targets_dihedral_angles(shape):
+    """What the programmed sheet would need: the target's whole curvature, carried into
+    the shrunk layout, folds every inner hinge as the target mesh does; the bilayer
+    along ``d`` holds only part of it (a third on the monkey saddle, under half on the
+    dome). The rim is left out: its clipped grid triangles measure the mesher."""
+    from pipeline.layout.free import flatten_free
+    from pipeline.mechanics.constraints import topology
+    from pipeline.mechanics.shell import dihedral
+    from pipeline.meshing.grid import build_grid_mesh
+    from meshes import LIMITS, REFINE_SHAPES
+    hf = REFINE_SHAPES[shape]()
+    mesh = build_grid_mesh(hf, 1.0)
+    flat = flatten_free(mesh, LIMITS.s_min, LIMITS.s_max, iterations=200)
+    sigma = np.clip(flat.sigma, LIMITS.s_min, LIMITS.s_max)
+    top = topology(mesh.faces, len(mesh.vertices))
+    target = dihedral(mesh.vertices, top.hinges)
+    K = curvature.target_tensor(hf, mesh, flat, sigma)
+    d = flat.direction
+    along = np.einsum("mi,mij,mj->m", d, K, d)[:, None, None] * np.einsum("mi,mj->mij", d, d)
+    mid = mesh.vertices[top.hinges[:, :2]].mean(axis=1)[:, :2]
+    r = np.linalg.norm(mid - mid.mean(axis=0), axis=1)
+    inner = r < 0.8 * r.max()
+
+    def fit(theta):
+        t, s = theta[inner], target[inner]
+        return np.corrcoef(t, s)[0, 1], t @ s / (s @ s)
+
+    corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, d, sigma, K, top))
+    assert corr > 0.99 and slope == pytest.approx(1.0, abs=0.05), (corr, slope)
+    corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, d, sigma, along, top))
+    assert corr < 0.6 and slope < 0.5, (corr, slope)

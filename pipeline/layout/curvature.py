@@ -147,28 +147,37 @@ def program(kappa_target, faces, xy, direction, sigma, thickness_mm, s_min, s_ma
     kappa = np.asarray(kappa_target, dtype=float)
     limited = np.abs(kappa) > k_max
     kappa = np.clip(kappa, -k_max, k_max)
-    a = _hinge_response(xy, faces, top.hinges, top.hinge_faces, direction, sigma)
-    theta_rest = (a * kappa[top.hinge_faces]).sum(axis=1)
+    d = np.asarray(direction, dtype=float)
+    K = kappa[:, None, None] * np.einsum("mi,mj->mij", d, d)
+    theta_rest = rest_angles(xy, faces, direction, sigma, K, top)
     return CurvatureProgram(kappa=kappa, delta_sigma=kappa * h / c, limited=limited,
                             theta_rest=theta_rest)
 
 
-def _hinge_response(xy, faces, hinges, hinge_faces, direction, sigma):
-    """Dihedral angle (rad) each hinge takes per unit curvature (1/mm) of each of its
-    two triangles along their print direction, once shrunk by its ``sigma``: (h, 2).
+def rest_angles(xy, faces, direction, sigma, K, top=None):
+    """Rest dihedral angle of each hinge of a sheet whose triangles have the natural
+    curvature ``K``: (h,) rad, hinges as ``topology(faces).hinges``.
 
-    Each triangle, shrunk along ``d``, is lifted onto the cylinder
-    ``z = kappa (d . (p - m))^2 / 2`` about the hinge's midpoint ``m``: both ends of the
+    xy : (n, 2) mm, the layout; direction : (m, 2) unit and sigma : (m,), each
+    triangle's print direction and shrink; K : (m, 2, 2) 1/mm, symmetric, in the
+    layout's frame after the shrink (a bilayer along ``d`` has ``kappa d d^T``).
+
+    Each triangle, shrunk along ``d``, is lifted onto the quadric
+    ``z = (p - m)^T K (p - m) / 2`` about the hinge's midpoint ``m``: both ends of the
     edge rise alike, so the edge stays level and the triangle turns about it by the rise
     of its far corner over its height. Exact for a sheet bent to one curvature, whatever
     way the mesh runs (a centroid-to-centroid estimate is a third short on a grid).
     """
+    faces = np.asarray(faces, dtype=np.int64)
     xy = np.asarray(xy, dtype=float)
+    top = top or topology(faces, len(xy))
+    hinges, hinge_faces = top.hinges, top.hinge_faces
     d = np.asarray(direction, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
     a, b = hinges[:, 0], hinges[:, 1]
     half_flat = 0.5 * (xy[b] - xy[a])
     mid = 0.5 * (xy[a] + xy[b])
-    out = np.empty((len(hinges), 2))
+    theta = np.zeros(len(hinges))
     for side in range(2):
         f = hinge_faces[:, side]
         far = xy[faces[f].sum(axis=1) - a - b] - mid
@@ -176,7 +185,32 @@ def _hinge_response(xy, faces, hinges, hinge_faces, direction, sigma):
                      for v in (half_flat, far))
         length = np.maximum(2.0 * np.linalg.norm(half, axis=1), 1e-12)
         height = np.abs(half[:, 0] * far[:, 1] - half[:, 1] * far[:, 0]) * 2.0 / length
-        rise = 0.5 * (np.einsum("hc,hc->h", d[f], far) ** 2
-                      - np.einsum("hc,hc->h", d[f], half) ** 2)
-        out[:, side] = rise / np.maximum(height, 1e-12)
-    return out
+        rise = 0.5 * (np.einsum("hi,hij,hj->h", far, K[f], far)
+                      - np.einsum("hi,hij,hj->h", half, K[f], half))
+        theta += rise / np.maximum(height, 1e-12)
+    return theta
+
+
+def target_tensor(hf, mesh, flat, sigma, smooth_mm=1.0):
+    """The target's curvature (second fundamental form, positive for a dome) carried
+    into each triangle's frame of :func:`rest_angles`: (m, 2, 2) 1/mm.
+
+    The map from the shrunk layout onto the target is an isometry where the layout
+    is admissible; its horizontal part ``J`` pulls the height field's Hessian back:
+    ``K = -J^T H J / sqrt(1 + |grad z|^2)``. What a sheet would need to be programmed
+    with to settle exactly on the target; :func:`program` can give only ``d^T K d``.
+    """
+    V = np.asarray(mesh.vertices, dtype=float)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    d = np.asarray(flat.direction, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    P = np.asarray(flat.xy, dtype=float)[faces]
+    T = V[faces]
+    sides = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2)           # (m, 2, 2)
+    along = np.einsum("mc,mck->mk", d, sides)
+    sides = sides - sigma[:, None, None] * d[:, :, None] * along[:, None, :]
+    J = np.stack([T[:, 1, :2] - T[:, 0, :2], T[:, 2, :2] - T[:, 0, :2]], axis=2)
+    J = J @ np.linalg.inv(sides)
+    fx, fy, fxx, fxy, fyy = surface_derivatives(hf, smooth_mm)(T.mean(axis=1)[:, :2])
+    H = np.stack([np.stack([fxx, fxy], axis=1), np.stack([fxy, fyy], axis=1)], axis=1)
+    return -np.einsum("mji,mjk,mkl->mil", J, H, J) / np.sqrt(1 + fx * fx + fy * fy)[:, None, None]

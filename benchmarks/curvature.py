@@ -1,0 +1,88 @@
+"""What the programmed curvature is worth: one free layout, settled from flat as a thin
+shell under different rest curvatures. Prints JSON.
+
+The metric (each triangle's shrink along its print direction) is the plan's; only the
+rest dihedral angles change:
+
+- ``none``: bending toward flat;
+- ``plan``: the plan's bilayer program (curvature along ``d``, within the shrink range);
+- ``along_d``: the target's curvature along ``d`` from the 1 mm smoothed field, no limit;
+- ``full_tensor``: the target's whole curvature (1 mm smoothed field) in the layout frame,
+  which paths that shrink only along themselves cannot program;
+- ``target_angles``: the target mesh's own dihedral angles.
+
+The gap between ``plan`` and ``full_tensor`` is what curvature across the print
+direction would bring. Mean displacement as a fraction of the report's longest diameter.
+
+    python benchmarks/curvature.py [INPUT ...]   # default: starfish and the real tiles
+"""
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+TERRAIN = ROOT.parent / "shared" / "data" / "terrain"
+
+
+def _inputs(folder):
+    """The reference starfish written as a drop file, and the real tiles where present."""
+    from pipeline.input import shapes
+    hf = shapes.starfish(diameter_mm=175.0)
+    path = Path(folder) / "starfish.npy"
+    np.save(path, hf.z.astype(np.float32))
+    path.with_suffix(".yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
+    return [path] + sorted(TERRAIN.glob("*.png"))
+
+
+def study(path):
+    """One input: the plan's figures and the displacement under each rest curvature."""
+    from pipeline.layout import curvature
+    from pipeline.mechanics.constraints import topology
+    from pipeline.mechanics.shell import dihedral
+    from pipeline.plan import BATH_BUMP, plan_file
+    from pipeline.profiles.profile import load_profile
+    from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
+    prof = load_profile("generic-0.5mm")
+    lim = prof.shrink_limits
+    p = plan_file(path, prof, method="free", force_fit=path.suffix == ".png")
+    mesh, flat = p.mesh, p.flat
+    sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
+    rest = directional_rest(flat.xy, mesh.faces, flat.direction, sigma)
+    thick = thickness_for(sigma, prof.shrink_curve, prof.layers, prof.thickness_mm.min,
+                          prof.thickness_mm.max)
+    top = topology(mesh.faces, len(mesh.vertices))
+    K = curvature.target_tensor(p.hf, mesh, flat, sigma)
+    d = flat.direction
+    along = np.einsum("mi,mij,mj->m", d, K, d)[:, None, None] * np.einsum("mi,mj->mij", d, d)
+    variants = {
+        "none": None, "plan": p.curvature.theta_rest,
+        "along_d": curvature.rest_angles(flat.xy, mesh.faces, d, sigma, along, top),
+        "full_tensor": curvature.rest_angles(flat.xy, mesh.faces, d, sigma, K, top),
+        "target_angles": dihedral(mesh.vertices, top.hinges)}
+    diameter = p.report["heightfield"]["longest_diameter_mm"]
+    out = {"input": path.name, "fit_scale": (p.fit.applied_scale if p.fit else None),
+           "longest_diameter_mm": diameter, "triangles": len(mesh.faces)}
+    for name, theta in variants.items():
+        t = time.perf_counter()
+        sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick, theta_rest=theta,
+                             pop=BATH_BUMP)
+        out[name] = {"mean_displacement_pct": round(100 * sim.mean_displacement_mm / diameter, 3),
+                     "iterations": sim.iterations, "converged": sim.converged,
+                     "seconds": round(time.perf_counter() - t, 2)}
+    return out
+
+
+def main():
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = [Path(a) for a in sys.argv[1:]] or _inputs(tmp)
+        print(json.dumps([study(p) for p in paths], indent=1))
+
+
+if __name__ == "__main__":
+    main()
