@@ -1,10 +1,14 @@
 """docs/figures.md and the README's figures block are written from benchmark results."""
 
-import sys
+import importlib.util
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import figures  # noqa: E402
+# Loaded from its file: with benchmarks/ on sys.path its pipeline.py would stand in for
+# the pipeline package in every test module collected after this one.
+_spec = importlib.util.spec_from_file_location(
+    "figures", Path(__file__).resolve().parents[1] / "benchmarks" / "figures.py")
+figures = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(figures)
 
 COND = {"cpu": "Test CPU", "cores": 2, "python": "3.11.7", "versions": {"numpy": "2.0"},
         "commit": "abc1234", "date": "2026-01-01 00:00 UTC", "load_average": [0.5, 0.4, 0.3]}
