@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from pipeline.geometry import signed_areas_2d, unique_edges
+from pipeline.paths.ends import REACH
 
 
 # Stripe pieces whose ends lie up to this many path widths apart are joined into one
@@ -45,8 +46,19 @@ def stripe_phase(xy, faces, normal, width_mm):
     field ``normal`` (per face, unit; the paths run across it), and the vertex field
     ``X`` ((n, 2)) the phase is measured along."""
     xy = np.asarray(xy, dtype=float)
-    n = len(xy)
     X = vertex_line_field(xy, faces, normal)
+    A, diag = stripe_matrix(xy, faces, X, width_mm)
+    mass = np.repeat(_vertex_areas(xy, faces), 2)
+    vec = smallest_eigenvector(A, mass, -1e-3 * float(diag.mean()) / float(mass.mean()))
+    psi = vec[0::2] + 1j * vec[1::2]
+    return np.angle(psi), X
+
+
+def stripe_matrix(xy, faces, X, width_mm):
+    """The stripe energy of a phase along the vertex field ``X`` ((n, 2) unit): the
+    sparse (2n, 2n) matrix over the real and imaginary parts of the vertex values, and
+    its diagonal per vertex ((n,))."""
+    n = len(xy)
     E = unique_edges(faces)
     i, j = E[:, 0], E[:, 1]
     s = np.where(np.einsum("ec,ec->e", X[i], X[j]) < 0, -1.0, 1.0)
@@ -70,10 +82,7 @@ def stripe_phase(xy, faces, normal, width_mm):
     vals.append(np.repeat(diag, 2))
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(2 * n, 2 * n))
-    mass = np.repeat(_vertex_areas(xy, faces), 2)
-    vec = smallest_eigenvector(A, mass, -1e-3 * float(diag.mean()) / float(mass.mean()))
-    psi = vec[0::2] + 1j * vec[1::2]
-    return np.angle(psi), X
+    return A, diag
 
 
 def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
@@ -200,25 +209,39 @@ def chain(keys):
     return out
 
 
-def plan_stripes(xy, faces, direction, sigma, width_mm):
-    """Paths along ``direction`` ((m, 2) unit per face), a path width apart.
+def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
+    """Paths along ``direction`` ((m, 2) unit per face), a path width apart; with
+    ``refine`` the phase is carried to finer triangles (:mod:`pipeline.paths.refine`),
+    which leaves smaller bare patches where the stripes fork.
 
     Returns (chains: list of ((k, 2) points mm, (k - 1,) sigma, closed), why each
-    triangle holds no path: (m,) int8 of :func:`corner_phases`)."""
+    triangle holds no path or part of one: (m,) int8 of :func:`corner_phases` (a
+    branch before a fork), the bare area (mm2))."""
     d = np.asarray(direction, dtype=float)
+    xy = np.asarray(xy, dtype=float)
     normal = np.stack([-d[:, 1], d[:, 0]], axis=1)
     phase, X = stripe_phase(xy, faces, normal, width_mm)
-    u, pathless = corner_phases(xy, faces, phase, X, width_mm)
-    pts, keys, face = stripe_segments(xy, faces, u, pathless == 0)
+    if refine:
+        from pipeline.paths.refine import refine_phase
+        xy, sub, phase, X, parent, u, bare = refine_phase(xy, faces, normal, phase, X,
+                                                         width_mm)
+    else:
+        sub, parent = faces, np.arange(len(faces))
+        u, bare = corner_phases(xy, faces, phase, X, width_mm)
+    pathless = np.zeros(len(faces), np.int8)
+    np.maximum.at(pathless, parent, bare)
+    bare_mm2 = float(np.abs(signed_areas_2d(xy, sub[bare > 0])).sum())
+    pts, keys, face = stripe_segments(xy, sub, u, bare == 0)
+    seg_sigma = np.asarray(sigma, dtype=float)[parent[face]]
     chains = []
     for steps, closed in chain(keys):
         seq = [pts[seg, entry] for seg, entry in steps] + [pts[steps[-1][0], 1 - steps[-1][1]]]
         p = np.asarray(seq)
-        sg = np.asarray([sigma[face[seg]] for seg, _ in steps], dtype=float)
+        sg = seg_sigma[[seg for seg, _ in steps]]
         if closed:
-            p, sg = p[:-1], sg
+            p = p[:-1]
         chains.append((p, sg, closed))
-    return chains, pathless
+    return chains, pathless, bare_mm2
 
 
 def direction_angles(points, xy, faces, direction):
@@ -264,19 +287,25 @@ def _vertex_areas(xy, faces):
 
 def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                      merge_sigma=0.005, link_factor=1.6, join_factor=JOIN_FACTOR,
-                     over_factor=OVER_FACTOR):
+                     over_factor=OVER_FACTOR, refine=True, retract=REACH):
     """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
     ends lie up to ``join_factor`` path widths apart joined first where the hop runs over
     other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), then chained into traces by short hops, as the
     isoline method's paths are; each segment carries the shrink of the triangle it
-    crosses; the report adds ``direction_angle_deg``."""
+    crosses; the report adds ``direction_angle_deg``. With ``refine`` the phase is
+    carried to finer triangles (:func:`plan_stripes`); path ends that come within
+    ``retract`` path widths of another path are cut back
+    (:func:`pipeline.paths.ends.retract_ends`; 0: not cut)."""
     import shapely
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
+    from pipeline.paths.ends import retract_ends
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
     xy = np.asarray(xy, dtype=float)
-    chains, pathless = plan_stripes(xy, faces, direction, sigma, width_mm)
+    chains, pathless, bare_mm2 = plan_stripes(xy, faces, direction, sigma, width_mm, refine)
+    if retract > 0:
+        chains = retract_ends(chains, width_mm, retract)
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
     outline = _outline_polygon(xy, boundary_loop(faces))
     footprint = outline.buffer(0.25 * width_mm)
@@ -297,4 +326,5 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["pathless_triangles"] = int((pathless > 0).sum())
     info["fork_triangles"] = int((pathless == FORK).sum())
     info["branch_triangles"] = int((pathless == BRANCH).sum())
+    info["pathless_mm2"] = bare_mm2
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)

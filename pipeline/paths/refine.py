@@ -1,0 +1,119 @@
+"""Finer triangles for the stripe phase than the layout's.
+
+The layout's triangles are about 2.6 path widths a side, while the free direction turns
+by tens of degrees a millimetre on real terrain: the phase, linear along each edge,
+cannot follow the paths between the corners, and the stripes fork in a fifth of the
+triangles, each a bare patch. Solving again on triangles split in four took six times
+as long; instead the coarse phase is carried to the split triangles (each edge's
+midpoint gets the phase half way along the edge's step) and relaxed there by a few
+sweeps of the same energy, which moves the forks to where the finer triangles put them
+and straightens the paths between. The triangles the phase still winds around are then
+split again, twice, without relaxing: the fork stays in one of the four, so the bare
+patch shrinks to a sixteenth.
+"""
+
+import numpy as np
+
+from pipeline.geometry import unique_edges
+
+# Jacobi sweeps of the stripe energy on the split triangles: on the real tiles 10 gave
+# the coverage and overlap of a full solve there (30 and 100 no better).
+RELAX_SWEEPS = 10
+# Splits of the triangles a fork or branch leaves bare: each quarters the bare patch.
+FORK_SPLITS = 2
+
+
+def split(xy, faces, phase, X, width_mm, red):
+    """Split the triangles ``red`` ((m,) bool) in four, and in two those of their
+    neighbours that share one split side (three-way splits would need more, so a
+    neighbour with two split sides is split in four too).
+
+    Each new vertex, the midpoint of a side from ``a`` to ``b``, takes the line field
+    ``X[a] + X[b]`` (turned to agree) and the phase of ``a`` plus half the side's step,
+    so the paths through a triangle split in two run where they did.
+
+    Returns (xy, faces, phase, X, parent: (m2,) the input triangle of each)."""
+    from pipeline.paths.stripes import _wrap
+
+    n = len(xy)
+    E = unique_edges(faces)
+    key = E[:, 0] * n + E[:, 1]
+    fe = np.stack([np.searchsorted(key, np.minimum(faces[:, k], faces[:, (k + 1) % 3]) * n
+                                   + np.maximum(faces[:, k], faces[:, (k + 1) % 3]))
+                   for k in range(3)], axis=1)
+    red = np.asarray(red, bool).copy()
+    while True:
+        marked = np.zeros(len(E), bool)
+        marked[fe[red].ravel()] = True
+        count = marked[fe].sum(axis=1)
+        more = ~red & (count >= 2)
+        if not more.any():
+            break
+        red |= more
+    me = np.flatnonzero(marked)
+    mid = np.full(len(E), -1)
+    mid[me] = n + np.arange(len(me))
+    a, b = E[me, 0], E[me, 1]
+    s = np.where(np.einsum("ec,ec->e", X[a], X[b]) < 0, -1.0, 1.0)
+    om = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[b] - xy[a],
+                                          0.5 * (X[a] + s[:, None] * X[b]))
+    step = om + _wrap(s * phase[b] - phase[a] - om)
+    Xm = X[a] + s[:, None] * X[b]
+    Xm /= np.maximum(np.linalg.norm(Xm, axis=1), 1e-12)[:, None]
+    xy2 = np.vstack([xy, 0.5 * (xy[a] + xy[b])])
+    phase2 = np.concatenate([phase, _wrap(phase[a] + step / 2)])
+    X2 = np.vstack([X, Xm])
+    r = np.flatnonzero(red)
+    A, B, C = faces[r].T
+    ab, bc, ca = mid[fe[r, 0]], mid[fe[r, 1]], mid[fe[r, 2]]
+    out = [np.stack(t, axis=1) for t in ((A, ab, ca), (ab, B, bc), (ca, bc, C), (ab, bc, ca))]
+    parent = [r] * 4
+    g = np.flatnonzero(~red & (count == 1))
+    k = np.argmax(marked[fe[g]], axis=1)               # the split side: corners k, k + 1
+    i0, i1, i2 = faces[g, k], faces[g, (k + 1) % 3], faces[g, (k + 2) % 3]
+    m = mid[fe[g, k]]
+    out += [np.stack([i0, m, i2], axis=1), np.stack([m, i1, i2], axis=1)]
+    parent += [g, g]
+    keep = np.flatnonzero(count == 0)
+    out.append(faces[keep])
+    parent.append(keep)
+    return xy2, np.concatenate(out), phase2, X2, np.concatenate(parent)
+
+
+def relax(xy, faces, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS):
+    """``sweeps`` Jacobi sweeps of the stripe energy of :func:`pipeline.paths.stripes.
+    stripe_phase` from ``phase`` (given along ``X``), on the triangles ``faces`` with
+    the line field ``normal`` per triangle. Returns (phase, X) as ``stripe_phase``."""
+    from pipeline.paths.stripes import stripe_matrix, vertex_line_field
+
+    Xn = vertex_line_field(xy, faces, normal)
+    # A vertex whose new line field points the other way sees the conjugate value.
+    phase = np.where(np.einsum("nc,nc->n", Xn, X) < 0, -phase, phase)
+    A, diag = stripe_matrix(xy, faces, Xn, width_mm)
+    v = np.empty(2 * len(xy))
+    v[0::2], v[1::2] = np.cos(phase), np.sin(phase)
+    d = np.repeat(diag, 2)
+    for _ in range(sweeps):
+        v = v - (A @ v) / d
+    return np.arctan2(v[1::2], v[0::2]), Xn
+
+
+def refine_phase(xy, faces, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS,
+                 fork_splits=FORK_SPLITS):
+    """The phase on every triangle split in four and relaxed, then the triangles it
+    winds around split ``fork_splits`` times more.
+
+    Returns (xy, faces, phase, X, parent: (m2,) the input triangle of each,
+    u and pathless of :func:`pipeline.paths.stripes.corner_phases` on these triangles)."""
+    from pipeline.paths.stripes import corner_phases
+
+    xy, sub, phase, X, parent = split(xy, faces, phase, X, width_mm, np.ones(len(faces), bool))
+    phase, X = relax(xy, sub, normal[parent], phase, X, width_mm, sweeps)
+    u, pathless = corner_phases(xy, sub, phase, X, width_mm)
+    for _ in range(fork_splits):
+        if not pathless.any():
+            break
+        xy, sub, phase, X, p = split(xy, sub, phase, X, width_mm, pathless > 0)
+        parent = parent[p]
+        u, pathless = corner_phases(xy, sub, phase, X, width_mm)
+    return xy, sub, phase, X, parent, u, pathless
