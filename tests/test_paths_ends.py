@@ -42,3 +42,13 @@ def test_closed_paths_and_uncrowded_ends_are_kept_whole():
               (_line((-1.0, 1.2), (1.0, 1.2), 10), np.full(9, 0.1), False)]
     out = retract_ends(chains, PW)
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(out, chains))
+
+
+def test_an_end_running_alongside_a_path_is_cut_back_further_than_a_width():
+    """A piece whose last 2.4 widths run a fifth of a width beside another path loses
+    all of them, not only the first width."""
+    wall = (_line((-5.0, 0.0), (5.0, 0.0), 21), np.full(20, 0.1), False)
+    stub = (np.vstack([_line((0.0, 3.0), (0.0, 0.1), 30), _line((0.1, 0.1), (1.0, 0.1), 10)]),
+            np.full(39, 0.2), False)
+    p = retract_ends([wall, stub], PW)[1][0]
+    assert abs(p[-1][0]) < 1e-9 and 0.8 * PW <= p[-1][1] <= 0.8 * PW + PW / 4

@@ -39,17 +39,16 @@ def retract_ends(chains, pw, reach=REACH, longest=LONGEST):
     length = arc[bounds[1:] - 1]
     closed = np.array([c for _, _, c in chains], bool)
     to_end = np.where(closed[label], np.inf, np.minimum(arc, length[label] - arc))
-    # Only points near an end can be cut: the others need no neighbours.
-    ask = np.flatnonzero(to_end <= longest * pw)
-    d, i = tree.query(samples[ask], k=min(_NEIGHBOURS, len(samples)),
-                      distance_upper_bound=reach * pw)
-    i = np.minimum(i, len(label) - 1)
-    mine, theirs = label[ask][:, None], label[i]
-    # A neighbour gives way where it is itself near the end of a shorter path.
-    firm = ((to_end[i] > pw) | (length[theirs] > length[mine])
-            | ((length[theirs] == length[mine]) & (theirs > mine)))
+    # Only points near an end can be cut, and most ends are cut by less than a width:
+    # the points up to a width in are asked first, those further in only for ends cut
+    # back all that way.
+    end = 2 * label + (arc > length[label] / 2)
     crowded = np.zeros(len(samples), bool)
-    crowded[ask] = ((theirs != mine) & np.isfinite(d) & firm).any(axis=1)
+    ask = np.flatnonzero(to_end <= pw)
+    crowded[ask] = _crowded(ask, samples, label, tree, to_end, length, pw, reach)
+    through = np.bincount(end[ask], ~crowded[ask], 2 * len(chains)) == 0
+    ask = np.flatnonzero((to_end > pw) & (to_end <= longest * pw) & through[end])
+    crowded[ask] = _crowded(ask, samples, label, tree, to_end, length, pw, reach)
     P = np.concatenate(paths)
     at, pb = _arc(P, np.repeat(np.arange(len(paths)), [len(p) for p in paths]))
     out = []
@@ -66,6 +65,21 @@ def retract_ends(chains, pw, reach=REACH, longest=LONGEST):
     return [c for c in chains if c is not None]
 
 
+def _crowded(ask, samples, label, tree, to_end, length, pw, reach):
+    """Which of the points ``ask`` lie within ``reach * pw`` of another path that does
+    not give way to theirs: (len(ask),) bool."""
+    if not len(ask):
+        return np.zeros(0, bool)
+    d, i = tree.query(samples[ask], k=min(_NEIGHBOURS, len(samples)),
+                      distance_upper_bound=reach * pw)
+    i = np.minimum(i, len(label) - 1)
+    mine, theirs = label[ask][:, None], label[i]
+    # A neighbour gives way where it is itself near the end of a shorter path.
+    firm = ((to_end[i] > pw) | (length[theirs] > length[mine])
+            | ((length[theirs] == length[mine]) & (theirs > mine)))
+    return ((theirs != mine) & np.isfinite(d) & firm).any(axis=1)
+
+
 def _arc(points, label):
     """Arc length of each point along its path (points of one path in a row, ``label``
     (q,) sorted), and where each path's points start and end: ((q,), (paths + 1,))."""
@@ -79,8 +93,10 @@ def _arc(points, label):
 
 def _cut(p, at, sg, start, stop, first, last):
     """The part of polyline ``p`` (arc length ``at`` at its points, segment sigma
-    ``sg``) from arc length ``start`` (point ``first``) to ``stop`` (point ``last``)."""
-    lo, hi = np.searchsorted(at, [start, stop], side="right")
-    hi -= at[hi - 1] == stop                      # a point at the very stop is ``last``
-    pts = np.vstack([first[None], p[lo:hi], last[None]])
-    return pts, sg[np.clip(np.arange(lo - 1, hi), 0, len(sg) - 1)], False
+    ``sg``) from arc length ``start`` (point ``first``) to ``stop`` (point ``last``).
+
+    The arc lengths come from other points along the same line, so ``p``'s own ends
+    never stand in the middle, however the sums round."""
+    lo = max(int(np.searchsorted(at, start, side="right")), 1)
+    hi = min(int(np.searchsorted(at, stop, side="left")), len(p) - 1)
+    return np.vstack([first, p[lo:hi], last]), sg[lo - 1:hi], False
