@@ -91,14 +91,20 @@ def stripe_matrix(xy, faces, X, width_mm):
 
 def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
     """The eigenvector of ``A x = lambda diag(mass) x`` with the smallest eigenvalue, by
-    inverse iteration from a fixed start on one factorisation of ``A - shift M``.
+    inverse iteration from a fixed start on one factorisation of ``A - shift M`` (``A``
+    symmetric positive semi-definite, ``shift`` < 0).
 
     Where the two smallest eigenvalues nearly coincide (a field with several singular
     points) any vector of their span is an equally good stripe pattern; ARPACK, asked
     for one of the pair, started from a random vector and at times iterated for many
     minutes. Here the answer is the same every run and the iterations are capped.
     """
-    lu = splu((A - shift * sp.diags(mass)).tocsc())
+    # A - shift M is symmetric positive definite for shift < 0 (A is an energy): no
+    # pivoting, and an ordering of A + A^T, factor it in a third of the time COLAMD
+    # takes, with less than half the fill (real tiles: 0.36 -> 0.13 s; 175 mm dome:
+    # 1.24 -> 0.29 s).
+    lu = splu((A - shift * sp.diags(mass)).tocsc(), permc_spec="MMD_AT_PLUS_A",
+              diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     x = np.random.default_rng(0).standard_normal(A.shape[0])
     x /= np.sqrt(np.dot(x, mass * x))
     for _ in range(max_iterations):
