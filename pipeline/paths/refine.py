@@ -113,7 +113,11 @@ def refine_phase(xy, faces, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS,
     for _ in range(fork_splits):
         if not pathless.any():
             break
+        n = len(xy)
         xy, sub, phase, X, p = split(xy, sub, phase, X, width_mm, pathless > 0)
         parent = parent[p]
-        u, pathless = corner_phases(xy, sub, phase, X, width_mm)
+        # Triangles not split keep their corners' values: only the new ones are asked.
+        new = (sub >= n).any(axis=1)
+        u, pathless = u[p], pathless[p]
+        u[new], pathless[new] = corner_phases(xy, sub[new], phase, X, width_mm)
     return xy, sub, phase, X, parent, u, pathless
