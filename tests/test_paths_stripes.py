@@ -102,15 +102,11 @@ def test_each_segment_carries_the_shrink_of_its_triangle():
     sigma = 0.05 + 0.25 * (c[:, 0] + 30) / 60
     chains, _, _ = plan_stripes(xy, faces, _field("turn", c), sigma, WIDTH)
     tri = Delaunay(xy)                 # the same triangles, in the same order
-    owner = {v: f for f, v in enumerate(sigma.tolist())}
-    assert len(owner) == len(faces) and len(chains) > 50
+    assert len(chains) > 50
     for p, sg, closed in chains:
         q = np.vstack([p, p[:1]]) if closed else p
-        f = np.array([owner[v] for v in sg.tolist()])
-        # The midpoint lies in that triangle or on its side (a path may run along one).
-        T = tri.transform[f]
-        b = np.einsum("sij,sj->si", T[:, :2], (q[1:] + q[:-1]) / 2 - T[:, 2])
-        assert np.c_[b, 1 - b.sum(axis=1)].min() > -1e-9
+        f = tri.find_simplex((q[1:] + q[:-1]) / 2)
+        assert np.all(f >= 0) and np.array_equal(sg, sigma[f])
 
 
 def test_the_stripe_phase_is_the_same_every_run():
@@ -173,19 +169,3 @@ def test_stripe_pieces_join_across_a_wider_reach_with_a_little_over_print():
     for key in ("coverage", "overlap", "spacing_mm"):
         assert wide[key] == strict[key]
 
-
-def test_points_within_a_hundredth_of_a_millimetre_of_the_chord_are_left_out():
-    """A straight run of one shrink keeps its ends only; a point where the shrink
-    changes is kept, and so is a bend."""
-    line = np.c_[np.linspace(0, 4, 9), np.zeros(9)]
-    sg = np.r_[np.full(4, 0.1), np.full(4, 0.2)]
-    bent = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]])
-    out = stripes.simplify([(line, sg, False), (bent, np.full(3, 0.3), False)], 0.01)
-    assert np.array_equal(out[0][0], line[[0, 4, 8]]) and np.array_equal(out[0][1], [0.1, 0.2])
-    assert np.array_equal(out[1][0], bent[[0, 2, 3]]) and np.array_equal(out[1][1], [0.3, 0.3])
-
-
-def test_a_closed_chain_is_simplified_as_a_ring():
-    ring = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
-    p, sg, closed = stripes.simplify([(ring, np.full(5, 0.1), True)], 0.01)[0]
-    assert closed and np.array_equal(p, ring[[0, 2, 3, 4]]) and len(sg) == 4

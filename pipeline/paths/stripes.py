@@ -26,10 +26,6 @@ from pipeline.paths.ends import REACH
 JOIN_FACTOR = 10.0
 OVER_FACTOR = 2.0
 
-# Points of a path within this distance (mm) of the chord of their neighbours are left
-# out: a fiftieth of a path width, half the G-code's chord tolerance.
-SIMPLIFY_MM = 0.01
-
 # Why a triangle holds no path (see :func:`corner_phases`).
 FORK, BRANCH = 1, 2
 
@@ -251,46 +247,8 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
         if closed:
             p = p[:-1]
         chains.append((p, sg, closed))
-    return simplify(chains, SIMPLIFY_MM), pathless, bare_mm2
+    return chains, pathless, bare_mm2
 
-
-def simplify(chains, tolerance_mm):
-    """The chains without the points that lie within ``tolerance_mm`` of the chord of
-    the points kept either side (Douglas-Peucker, GEOS, all chains at once), within
-    runs of one sigma: a segment still carries the shrink of every triangle it crosses.
-
-    On the finer triangles a path has a point every third of a millimetre, twice the
-    layout's; the joins, traces and G-code that follow take time by the point."""
-    import shapely
-
-    if not chains:
-        return chains
-    lines = [np.vstack([p, p[:1]]) if closed else p for p, _, closed in chains]
-    k = np.array([len(p) for p in lines])
-    pts = np.concatenate(lines)
-    sig = np.concatenate([np.asarray(sg, float) for _, sg, _ in chains])
-    trace = np.repeat(np.arange(len(lines)), k)
-    start = np.flatnonzero(trace[1:] == trace[:-1])           # each segment's first point
-    new = np.ones(len(start), bool)
-    new[1:] = (start[1:] != start[:-1] + 1) | (sig[1:] != sig[:-1])
-    first = np.flatnonzero(new)
-    last = np.r_[first[1:], len(start)] - 1
-    # A run of segments owns their first points and its last segment's end.
-    run_pts = np.concatenate([start, start[last] + 1])
-    run = np.concatenate([np.cumsum(new) - 1, np.arange(len(first))])
-    order = np.lexsort((run_pts, run))
-    coords = np.column_stack([pts[run_pts[order]], run_pts[order].astype(float)])
-    kept = shapely.get_coordinates(shapely.simplify(
-        shapely.linestrings(coords, indices=run[order]), tolerance_mm,
-        preserve_topology=False), include_z=True)[:, 2]
-    keep = np.unique(np.rint(kept).astype(np.int64))
-    cut = np.cumsum(np.bincount(trace[keep], minlength=len(lines)))[:-1]
-    out = []
-    for (_, _, closed), idx in zip(chains, np.split(keep, cut)):
-        # Point g starts segment g - trace[g] (each earlier chain has one point more).
-        sg = sig[idx[:-1] - trace[idx[:-1]]]
-        out.append((pts[idx[:-1]] if closed else pts[idx], sg, closed))
-    return out
 
 
 def direction_angles(points, xy, faces, direction):
