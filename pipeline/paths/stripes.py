@@ -8,7 +8,10 @@ across ``d``: the smallest eigenvector of a sparse Hermitian problem, with the s
 flips of a line field (``d`` and ``-d`` are the same direction) written as complex
 conjugation. The paths are the phase's level sets; where the phase winds around a
 triangle (a fork of the stripes) or the line field turns over (a branch point), the
-triangle holds no path, and paths end there.
+triangle holds no path, and paths end there. The layout's triangles are too coarse for
+a direction that turns as fast as on real terrain; the phase is drawn on finer ones
+(:mod:`pipeline.paths.refine`) and the path ends that crowd other paths around the
+forks are cut back (:mod:`pipeline.paths.ends`).
 """
 
 import numpy as np
