@@ -184,7 +184,8 @@ def stripe_segments(xy, faces, u, ok):
 def chain(keys):
     """Join segments that share end points into polylines (either direction).
 
-    Returns a list of (points as a list of (segment, end) steps, closed)."""
+    Returns a list of (the ends each segment is entered at, in order (end ``e`` is end
+    ``e % 2`` of segment ``e // 2``), closed)."""
     s = len(keys)
     flat = keys.ravel()
     order = np.argsort(flat, kind="stable")
@@ -205,13 +206,13 @@ def chain(keys):
         while True:
             seg = e // 2
             seen[seg] = 1
-            steps.append((seg, e % 2))                       # enter at end e % 2
+            steps.append(e)
             other = e ^ 1
             nxt = partner[other]
             if nxt < 0:
                 break
             if seen[nxt // 2]:
-                closed = nxt // 2 == steps[0][0]
+                closed = nxt // 2 == steps[0] // 2
                 break
             e = nxt
         out.append((steps, closed))
@@ -244,12 +245,11 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
     seg_sigma = np.asarray(sigma, dtype=float)[parent[face]]
     chains = []
     for steps, closed in chain(keys):
-        seq = [pts[seg, entry] for seg, entry in steps] + [pts[steps[-1][0], 1 - steps[-1][1]]]
-        p = np.asarray(seq)
-        sg = seg_sigma[[seg for seg, _ in steps]]
-        if closed:
-            p = p[:-1]
-        chains.append((p, sg, closed))
+        e = np.asarray(steps)
+        seg, entry = e // 2, e % 2
+        # Each segment's entry point, then where the last one is left.
+        p = pts[np.append(seg, seg[-1]), np.append(entry, 1 - entry[-1])]
+        chains.append((p[:-1] if closed else p, seg_sigma[seg], closed))
     return chains, pathless, bare_mm2
 
 
