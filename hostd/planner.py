@@ -18,8 +18,9 @@ from pipeline import plyio
 from pipeline.gcode import writer as gcode
 from pipeline.gcode.link import LINK_SHARE
 from pipeline.pictures import figure, hfimage, render, texture
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, PlanError
 from pipeline.plan import plan_file
+from pipeline.problems import BLOCKING
 
 TEXTURE_DPI = 300
 
@@ -76,8 +77,11 @@ def write_outputs(st, plan):
     timing = plan.report["timing_s"]
     tp = plan.toolpaths
     t = time.perf_counter()
-    stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name,
-                              center=False, deltas=_segment_deltas(plan))
+    try:
+        stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name,
+                                  center=False, deltas=_segment_deltas(plan))
+    except PlanError as e:
+        raise _blocked_first(plan, e) from e
     if plan.blocked:
         _mark_not_printable(st.path(out["gcode"]), plan.problems)
     timing["gcode"] = round(time.perf_counter() - t, 4)
@@ -190,10 +194,26 @@ def _segment_deltas(plan):
     return out
 
 
+def _blocked_first(plan, error):
+    """The error to report when a plan's G-code cannot be written: a blocked plan's own
+    reason and fix, with the G-code's error after them. A relief too high to form lays
+    out larger than it prints, so its G-code may leave the bed; the fix that helps is
+    the relief's (the sidecar line), not a smaller model."""
+    blocking = [p for p in plan.problems if p["code"] in BLOCKING]
+    if not blocking:
+        return error
+    first = blocking[0]
+    return PlanError("%s; besides, its G-code cannot be written: %s" % (
+                         first["message"], error.message),
+                     code=first["code"], fix=first["fix"],
+                     details={"gcode": {"code": error.code, "message": error.message,
+                                        "where": error.where, **error.details}})
+
+
 def _mark_not_printable(path, problems):
     """Put the reasons at the top of the G-code, where a person or host sees them first."""
     head = "".join("; WARNING NOT PRINTABLE: %s: %s\n" % (p["code"], p["message"])
-                   for p in problems if p["code"] == "flatten.overlap")
+                   for p in problems if p["code"] in BLOCKING)
     body = path.read_bytes()
     path.write_bytes(head.encode("utf-8") + body)
 

@@ -68,6 +68,22 @@ def test_a_relief_asked_for_is_refused_with_the_line_that_forms(tmp_path):
     assert float(line.split(":")[1]) < 45.0
 
 
+def test_a_refused_relief_whose_layout_leaves_the_bed_is_reported_by_its_own_fix(tmp_path):
+    """Laid out at the height asked for, the cone's flat sheet is larger than the bed:
+    the error a person reads is the relief's, with the sidecar line that forms, not a
+    request for a smaller model (which would make the slopes steeper still)."""
+    from pipeline.errors import PipelineError
+    small_bed = dataclasses.replace(FREE, bed_mm=(61.0, 61.0))
+    with pytest.raises(PipelineError) as err:
+        planner.run(_write(tmp_path, _cone(45.0), "height_mm: 45\n"), small_bed,
+                    tmp_path / "out")
+    e = err.value
+    assert e.code == "fit.too_high" and "height_mm: " in e.fix and "cone.yaml" in e.fix
+    assert e.details["gcode"]["code"] == "gcode.off_bed"
+    assert "does not fit the 61 x 61 mm bed" in e.message
+    assert (tmp_path / "out" / "cone.error.json").exists()
+
+
 def test_fit_off_keeps_the_relief(tmp_path):
     plan = planner.run(_write(tmp_path, _cone(45.0), "fit: off\n"), FREE, tmp_path / "out")
     assert plan.fit is None and plan.report["flatten"]["invalid_area_fraction"] > 0.02
