@@ -157,8 +157,10 @@ def open_checked(path):
 
 
 def new_job_id():
-    """Sortable, short and safe in paths: ``YYYYmmdd-HHMMSS-xxxxxx``."""
-    return time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + "-" + uuid.uuid4().hex[:6]
+    """Sortable and safe in paths: ``YYYYmmdd-HHMMSS-`` and 12 hex digits. Ids made in
+    one second differ by their random part alone: with 6 digits, a folder of a few
+    hundred files taken at once collided now and then."""
+    return time.strftime("%Y%m%d-%H%M%S", time.gmtime()) + "-" + uuid.uuid4().hex[:12]
 
 
 class JobStore:

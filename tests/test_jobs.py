@@ -184,3 +184,10 @@ def test_a_terminal_command_on_a_damaged_job_database_says_so(tmp_path, capsys):
     assert main(["jobs", "--config", str(cfg)]) == 2
     err = capsys.readouterr().err
     assert "error jobs.damaged" in err and "restart the daemon" in err
+
+
+def test_job_ids_made_in_one_burst_do_not_collide():
+    """A drop folder of thousands of files is taken within a second or two; with six
+    random hex digits twenty thousand ids would hold about a dozen duplicates."""
+    ids = [J.new_job_id() for _ in range(20000)]
+    assert len(set(ids)) == len(ids)
