@@ -5,6 +5,12 @@ A regular grid of ``spacing_mm``, each square cut along alternating diagonals (s
 mesh has no preferred direction), keeping the triangles whose corners and centre lie on
 the footprint; heights are read from the field by bilinear interpolation. Any footprint
 and any terrain mesh this way: no isoline can cross another, so nothing can overlap.
+
+The kept squares end in a staircase where the footprint's edge runs across the grid,
+and the stripe paths cut that staircase into stubs a millimetre long, each printed on
+its own (a dome's sheet took 125 separate traces for one spiral). So the boundary
+vertices are moved onto the footprint's edge, and the slivers that leaves squashed
+flat against it are dropped.
 """
 
 import numpy as np
@@ -12,6 +18,8 @@ from scipy.ndimage import map_coordinates
 
 from pipeline.errors import MeshingError
 from pipeline.geometry import Mesh
+
+_PAD = 4
 
 
 def build_grid_mesh(hf, spacing_mm=1.0):
@@ -56,6 +64,7 @@ def build_grid_mesh(hf, spacing_mm=1.0):
     remap2[used2] = np.arange(len(used2))
     faces = remap2[faces]
     xy = pts[used][used2]
+    xy, faces = follow_edge(hf, inside, xy, faces, spacing_mm)
     zz = _heights(hf, z, inside, xy)
     V = np.c_[xy, zz]
     from pipeline.geometry import unique_edges
@@ -63,6 +72,61 @@ def build_grid_mesh(hf, spacing_mm=1.0):
                 bridge_edges=unique_edges(faces), vertex_level=zz,
                 printing_isoline=np.zeros(0, np.int64),
                 info={"method": "grid", "grid_mm": float(spacing_mm)})
+
+
+def follow_edge(hf, inside, xy, faces, spacing_mm):
+    """The mesh ``xy`` ((n, 2) mm), ``faces`` ((m, 3)) with its boundary vertices moved
+    onto the footprint's edge (the line through the outermost footprint pixels'
+    centres, as a straight edge of the grid already lies) where no triangle turns over
+    for it; triangles with all corners on the edge squashed to less than a quarter of a
+    grid triangle are dropped. Returns (xy, faces), the vertices renumbered."""
+    from pipeline.geometry import boundary_loops, signed_areas_2d
+    sdf, grad = _edge_distance(inside, float(hf.pixel_mm))
+    b = np.unique(np.concatenate(boundary_loops(faces)))
+    moved = xy.copy()
+    for _ in range(3):                       # Newton steps on the distance to the edge
+        rc = np.stack(hf.rc(moved[b]), axis=0) + _PAD
+        s = map_coordinates(sdf, rc, order=1, mode="nearest")
+        g = np.stack([map_coordinates(grad[k], rc, order=1, mode="nearest")
+                      for k in range(2)], axis=1)
+        moved[b] -= s[:, None] * g / np.maximum((g * g).sum(axis=1), 1e-6)[:, None]
+    # A step never goes farther than the edge can be from a kept corner.
+    step = moved[b] - xy[b]
+    far = np.linalg.norm(step, axis=1) > 1.5 * spacing_mm
+    moved[b[far]] = xy[b[far]]
+    nominal = 0.5 * spacing_mm ** 2
+    on_edge = np.zeros(len(xy), bool)
+    on_edge[b] = True
+    for _ in range(5):
+        area = signed_areas_2d(moved, faces)
+        flat = (area < 0.25 * nominal) & on_edge[faces].all(axis=1)
+        faces = faces[~flat]
+        bad = signed_areas_2d(moved, faces) < 0.1 * nominal
+        if not bad.any():
+            break
+        # Where a triangle would turn over or squash, its corners stay on the grid.
+        back = np.unique(faces[bad])
+        moved[back] = xy[back]
+    faces = _one_piece(faces)
+    used = np.unique(faces)
+    remap = np.full(len(xy), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return moved[used], remap[faces]
+
+
+def _edge_distance(inside, px):
+    """Signed distance (mm) to the footprint's edge, zero at the outermost footprint
+    pixels' centres and positive inside, smoothed over a pixel so the pixels' own
+    staircase does not show, and its gradient in plane coordinates ((2,) + shape, mm
+    per mm, x then y); both padded by ``_PAD`` pixels all round, so that the edge of
+    the image is an edge like any other."""
+    from scipy.ndimage import distance_transform_edt, gaussian_filter
+    pad = np.pad(inside, _PAD)
+    d = np.where(pad, distance_transform_edt(pad) - 1.0, -distance_transform_edt(~pad))
+    d = gaussian_filter(d * px, 1.0, mode="nearest")
+    g_row, g_col = np.gradient(d, px)
+    # Rows run against y (see HeightField.rc).
+    return d, np.stack([g_col, -g_row])
 
 
 def _on_footprint(hf, inside, pts):
