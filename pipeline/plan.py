@@ -21,7 +21,7 @@ from pipeline.input.simplify import simplify
 from pipeline.input.validate import validate
 from pipeline.layout import curvature
 from pipeline.layout.fit import fit_height, scaled
-from pipeline.layout.free import flatten_free
+from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
@@ -301,6 +301,9 @@ def _free_sheet(result, hf, profile, stage, timing):
               % (len(mesh.faces), fp.free_iterations, ", solved by the fit" if reuse else ""))
     flat = reuse[1] if reuse else flatten_free(mesh, lim.s_min, lim.s_max,
                                                iterations=fp.free_iterations)
+    # Only curvature along the paths can be programmed: where the layout leaves the
+    # direction free, the paths turn the way the target bends most.
+    flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
     result.flat = flat
     timing["flatten"] = time.perf_counter() - t
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)

@@ -143,3 +143,28 @@ def test_the_full_curvature_in_the_layout_frame_gives_the_targets_dihedral_angle
     assert corr > 0.99 and slope == pytest.approx(1.0, abs=0.05), (corr, slope)
     corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, d, sigma, along, top))
     assert corr < 0.6 and slope < 0.5, (corr, slope)
+
+
+def _ridge():
+    """A ridge running along y, a half cylinder of radius 30 mm across x: developable,
+    so the layout needs no shrink and leaves the print direction free everywhere."""
+    from pipeline.geometry import HeightField
+    y, x = np.mgrid[0:161, 0:141] * 0.5
+    r = np.clip(np.abs(x - 35.0), 0, 29.0)
+    return HeightField(z=np.sqrt(30.0 ** 2 - r ** 2), pixel_mm=0.5)
+
+
+def test_free_directions_turn_the_way_the_target_bends_most():
+    from pipeline.layout.free import FREE_BELOW, flatten_free
+    from pipeline.meshing.grid import build_grid_mesh
+    hf = _ridge()
+    mesh = build_grid_mesh(hf, 2.0)
+    flat = flatten_free(mesh, 0.0, 0.34)
+    assert np.percentile(flat.sigma, 95) < FREE_BELOW
+    bent = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+    # On the crest (away from the ends), the paths run around the ridge: across y.
+    c = mesh.vertices[mesh.faces].mean(axis=1)
+    crest = (np.abs(c[:, 0] - 35.0) < 20.0) & (np.abs(c[:, 1] - 40.0) < 25.0)
+    across = np.degrees(np.arccos(np.abs(bent.direction[crest, 0])))
+    assert np.percentile(across, 90) < 10.0
+    assert np.allclose(bent.xy, flat.xy) and np.allclose(bent.sigma, flat.sigma)

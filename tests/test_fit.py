@@ -56,7 +56,7 @@ def test_a_relief_nobody_asked_for_is_lowered_to_what_forms(tmp_path):
     assert set(r["fit"]) >= {"max_height_mm", "requested_height_mm", "applied_scale",
                              "smooth_mm", "reason", "min_smooth_mm"}
     # The fit's last solve was this layout, on the plan's mesh: the plan takes it.
-    assert r["fit"]["layout_reused"] and plan.flat is plan.fit.layout[1]
+    assert r["fit"]["layout_reused"] and plan.flat.xy is plan.fit.layout[1].xy
 
 
 def test_a_relief_asked_for_is_refused_with_the_line_that_forms(tmp_path):

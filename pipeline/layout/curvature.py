@@ -14,6 +14,10 @@ what the shrink range allows around the triangle's mean shrink:
 ``|sigma_bottom - sigma_top| <= 2 * min(sigma - s_min, s_max - sigma)``.
 Bending then pulls toward the target instead of toward flat, and the sign of the
 program decides which way each region rises in the bath.
+
+Only the curvature along ``d`` can be programmed, so where the layout leaves the
+direction free (``sigma`` near 0: the starfish's arms, most of a dome's rim) ``d`` is
+turned toward the direction the target bends most (:func:`bend_free_directions`).
 """
 
 from dataclasses import dataclass
@@ -214,3 +218,26 @@ def target_tensor(hf, mesh, flat, sigma, smooth_mm=1.0):
     fx, fy, fxx, fxy, fyy = surface_derivatives(hf, smooth_mm)(T.mean(axis=1)[:, :2])
     H = np.stack([np.stack([fxx, fxy], axis=1), np.stack([fxy, fyy], axis=1)], axis=1)
     return -np.einsum("mji,mjk,mkl->mil", J, H, J) / np.sqrt(1 + fx * fx + fy * fy)[:, None, None]
+
+
+def bend_free_directions(hf, mesh, flat, below, smooth_mm=5.0):
+    """``flat`` (a :class:`pipeline.layout.free.FreeLayout`) with its free directions
+    (``sigma`` below ``below``) turned toward the target's direction of strongest
+    normal curvature, as far as that direction is marked (the difference of the two
+    principal curvatures' sizes, relative to its 95th percentile over the sheet), and
+    kept smooth (:func:`pipeline.layout.free.smooth_free_directions`)."""
+    import dataclasses
+
+    from pipeline.layout.free import smooth_free_directions
+    sigma = np.asarray(flat.sigma, dtype=float)
+    K = target_tensor(hf, mesh, flat, np.clip(sigma, 0.0, None), smooth_mm)
+    k, v = np.linalg.eigh(K)
+    big = np.abs(k[:, 1]) >= np.abs(k[:, 0])
+    prefer = np.where(big[:, None], v[:, :, 1], v[:, :, 0])
+    marked = np.abs(np.abs(k[:, 1]) - np.abs(k[:, 0]))
+    scale = float(np.percentile(marked, 95))
+    if scale <= 0:
+        return flat
+    d = smooth_free_directions(flat.direction, sigma, mesh.faces, below, prefer=prefer,
+                               strength=np.clip(marked / scale, 0.0, 1.0))
+    return dataclasses.replace(flat, direction=d)

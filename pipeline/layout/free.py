@@ -23,6 +23,8 @@ from scipy.sparse.linalg import splu
 
 # A Jacobian that leaves the admissible set by more than this (relative) counts as invalid.
 INVALID_TOL = 0.01
+# Below this shrink a triangle prints the same sheet along any direction.
+FREE_BELOW = 0.05
 
 
 @dataclass
@@ -132,7 +134,7 @@ def violation(J, lam_lo, lam_hi, tol=INVALID_TOL):
 
 
 def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy=None,
-                 smooth_free_below=0.05):
+                 smooth_free_below=FREE_BELOW):
     """Lay the target ``mesh`` flat with a free print direction per triangle.
 
     Parameters
@@ -203,7 +205,7 @@ def _jacobians(G, X, m):
     return np.transpose((G @ X).reshape(m, 2, 2), (0, 2, 1))
 
 
-def smooth_free_directions(d, sigma, faces, below, anchor=10.0):
+def smooth_free_directions(d, sigma, faces, below, anchor=10.0, prefer=None, strength=None):
     """Make the print direction smooth where the sheet leaves it free.
 
     Where ``sigma`` is small the layout barely stretches and any direction prints the
@@ -212,23 +214,35 @@ def smooth_free_directions(d, sigma, faces, below, anchor=10.0):
     doubled angles) keeps each direction where ``sigma >= below`` and lets the others
     follow their neighbours: minimises sum over neighbours |z_f - z_g|^2 + sum over
     triangles w_f |z_f - z0_f|^2, w_f = anchor * min(sigma_f / below, 1)^2.
+    With ``prefer`` ((m, 2) unit) the free triangles also lean toward it, by
+    ``anchor * (1 - min(sigma_f / below, 1))^2 * strength_f`` (``strength`` (m,) in
+    0..1): the direction the curvature program wants (:mod:`pipeline.layout.curvature`).
     d : (m, 2) unit; returns (m, 2).
     """
     from pipeline.mechanics.constraints import topology
     m = len(d)
-    w = anchor * np.clip(np.asarray(sigma, dtype=float) / below, 0.0, 1.0) ** 2
-    if np.all(w >= anchor) or not np.any(w > 0):
+    free = 1.0 - np.clip(np.asarray(sigma, dtype=float) / below, 0.0, 1.0)
+    w = anchor * (1.0 - free) ** 2
+    u = np.zeros(m) if prefer is None else anchor * free ** 2 * np.asarray(strength, float)
+    if np.all(w >= anchor) or not np.any(w + u > 0):
         return d
     top = topology(faces)
     f0, f1 = top.hinge_faces.T
     adj = sp.coo_matrix((np.ones(len(f0)), (f0, f1)), shape=(m, m))
     adj = (adj + adj.T).tocsr()
     L = sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
-    z0 = np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
-    lu = splu((L + sp.diags(w + 1e-9)).tocsc())
-    z = lu.solve(w * z0.real) + 1j * lu.solve(w * z0.imag)
+    rhs = w * _doubled(d)
+    if prefer is not None:
+        rhs = rhs + u * _doubled(prefer)
+    lu = splu((L + sp.diags(w + u + 1e-9)).tocsc())
+    z = lu.solve(rhs.real) + 1j * lu.solve(rhs.imag)
     ang = np.angle(z) / 2
     return np.stack([np.cos(ang), np.sin(ang)], axis=1)
+
+
+def _doubled(d):
+    """A line field as unit complex numbers of doubled angle: (m,) complex."""
+    return np.exp(2j * np.arctan2(d[:, 1], d[:, 0]))
 
 
 def _invalid_edges_along(J, d, X, faces, lam_lo, lam_hi, tol=INVALID_TOL):
