@@ -1,7 +1,7 @@
 """Joining open paths end to end by short extruded hops that print over nothing.
 
 Stripe paths stop where the stripes fork or the direction field turns over (the
-triangle there holds no path) and at every notch of the sheet's edge, so a stripe
+triangle there holds no path) and where they run into the sheet's edge, so a stripe
 plan has hundreds of pieces whose ends face another piece's end across a small gap.
 A hop is extruded like the paths it joins, so it is only taken where its centre line
 keeps more than half a path width from every other path (it prints over no bead but
