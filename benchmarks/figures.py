@@ -170,9 +170,9 @@ def headline(groups):
     for name in ("plan", "terrain", "methods"):
         for model, r in _models(groups.get(name, {}).get("results", {})).items():
             if model.split(" ")[0] in HEADLINE:
-                # The whole-plan groups plan with the profile as shipped: the isoline
-                # method, checked by the paper's simulation; the methods group's rows are
-                # both methods under the thin shell.
+                # The whole-plan groups plan with the isoline method, checked by the
+                # paper's simulation; the methods group's rows are both methods under the
+                # thin shell.
                 models[model if name == "methods" else model + " (isoline, paper's sim.)"] = r
     if not models:
         return "No benchmark has been run yet: `python benchmarks/pipeline.py`."

@@ -9,9 +9,11 @@ nothing here asserts them.
     python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain |
                                                   # fine_map | layout | methods
 
-The plan group runs each model with the profile as shipped: the forward
+The plan, terrain and fine_map groups run each model with the paper's method
+(``isoline``) and the rest of the profile as shipped: the paper's forward
 simulation settles the coarse sheet (``mesh.l_sim_mm: 2``) and then the full
-mesh from its shape.
+mesh from its shape. The methods group runs both methods, each checked by the
+thin shell.
 """
 
 import argparse
@@ -222,7 +224,7 @@ def bench_fine_map(n=4000):
     high-resolution export brings; planned on validate.working_pixel_mm samples."""
     with tempfile.TemporaryDirectory() as tmp:
         _child(FINE_MAP, tmp, str(n))
-        res = _child(PLAN, str(Path(tmp) / "fine_map.png"), tmp + "/out")
+        res = _child(PLAN, str(Path(tmp) / "fine_map.png"), tmp + "/out", "isoline")
     res["pixels"] = n * n
     return res
 
@@ -240,7 +242,7 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             _child(SHAPE, name, tmp)
-            runs = [_child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out")
+            runs = [_child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out", "isoline")
                     for _ in range(repeats if name == "dome" else 1)]
             out[name] = runs[0]
             if len(runs) > 1 and all("error" not in r for r in runs):
@@ -281,7 +283,7 @@ def bench_terrain():
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for png in sorted(TERRAIN.glob("*.png")):
-            out[png.stem] = _child(PLAN, str(png), tmp)
+            out[png.stem] = _child(PLAN, str(png), tmp, "isoline")
     return out
 
 

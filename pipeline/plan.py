@@ -329,7 +329,7 @@ def _free_sheet(result, hf, profile, stage, timing):
     tp = profile.toolpath
     result.toolpaths = stripe_toolpaths(result.xy_bed, mesh.faces, flat.direction, sigma,
                                         profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
-                                        merge_sigma=tp.merge_sigma)
+                                        merge_sigma=tp.merge_sigma, level=mesh.vertex_level)
     timing["toolpath"] = time.perf_counter() - t
 
 

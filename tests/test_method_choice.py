@@ -21,7 +21,7 @@ def _saddle(tmp_path, method=None):
 
 
 def test_a_saddle_the_isoline_method_cannot_print_says_the_free_one_would(tmp_path):
-    plan = plan_file(_saddle(tmp_path), load_profile("generic-0.5mm"))
+    plan = plan_file(_saddle(tmp_path, "isoline"), load_profile("generic-0.5mm"))
     r = plan.report
     assert r["flatten"]["method"] == "isoline" and not r["printable"]
     assert r["other_method"]["would_form"] and r["other_method"]["flipped"] == 0
@@ -30,9 +30,13 @@ def test_a_saddle_the_isoline_method_cannot_print_says_the_free_one_would(tmp_pa
 
 
 def test_the_sidecar_chooses_the_method(tmp_path):
-    plan = plan_file(_saddle(tmp_path, "free"), load_profile("generic-0.5mm"))
-    assert plan.report["flatten"]["method"] == "free" and plan.profile.flatten.method == "free"
-    assert "other_method" not in plan.report
+    prof = load_profile("generic-0.5mm")
+    assert prof.flatten.method == "free"
+    plan = plan_file(_saddle(tmp_path, "isoline"), prof)
+    assert plan.report["flatten"]["method"] == "isoline"
+    assert plan.profile.flatten.method == "isoline"
+    plan = plan_file(_saddle(tmp_path, "free"), prof)
+    assert plan.report["flatten"]["method"] == "free" and "other_method" not in plan.report
 
 
 def test_an_unknown_method_is_refused_with_the_choices(tmp_path):

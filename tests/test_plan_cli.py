@@ -152,7 +152,8 @@ def test_real_terrain_plans_and_says_whether_it_is_printable(terrain_dir, tmp_pa
     # third of the plan time of its full 112 mm.
     src = tmp_path / "vancouver_island_south.png"
     src.write_bytes((terrain_dir / src.name).read_bytes())
-    src.with_suffix(".yaml").write_text("size_mm: 60\nheight_mm: 18.5\nmax_fill_mm: 5.0\n")
+    src.with_suffix(".yaml").write_text("size_mm: 60\nheight_mm: 18.5\nmax_fill_mm: 5.0\n"
+                                        "method: isoline\n")
     r = hostd("plan", src, "-o", tmp_path)
     assert r.returncode in (0, 4), r.stderr
     report = json.loads((tmp_path / "vancouver_island_south.report.json").read_text())

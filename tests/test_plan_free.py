@@ -30,7 +30,10 @@ def test_the_free_method_plans_a_saddle_end_to_end(saddle_plan):
     assert set(r["flatten"]["invalid_area"]) == {"would_stretch", "would_shrink_too_much"}
     assert r["printable"] and (out / "saddle.gcode").stat().st_size > 0
     tp = r["toolpath"]
-    assert tp["coverage"] > 0.9 and "direction_angle_deg" in tp and "isoline_angle_deg" not in tp
+    assert tp["coverage"] > 0.9 and "direction_angle_deg" in tp
+    # The isoline method's key too: on a saddle the paths leave the isolines to run
+    # down the slope where the sheet must lose length across them.
+    assert tp["isoline_angle_deg"]["p95"] > 45.0
     assert r["gcode"]["layers"] == plan.profile.layers
     # The curvature program is printed: the lower layers of a rising region are thinner.
     assert plan.curvature is not None and np.abs(plan.curvature.delta_sigma).max() > 0
@@ -43,6 +46,6 @@ def test_the_free_method_plans_a_saddle_end_to_end(saddle_plan):
 def test_the_isoline_method_says_so(tmp_path):
     hf = shapes.dome(diameter_mm=30.0, height_mm=6.0)
     np.save(tmp_path / "d.npy", hf.z)
-    (tmp_path / "d.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
+    (tmp_path / "d.yaml").write_text("pixel_mm: %r\nmethod: isoline\n" % hf.pixel_mm)
     plan = planner.run(tmp_path / "d.npy", load_profile("generic-0.5mm"), tmp_path / "out")
     assert plan.report["flatten"]["method"] == "isoline"

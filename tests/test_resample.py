@@ -68,7 +68,7 @@ def test_a_plan_that_asks_for_the_shell_reports_the_grid_sheet(tmp_path):
     np.save(tmp_path / "dome.npy", hf.z)
     (tmp_path / "dome.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
     prof = load_profile("generic-0.5mm")
-    shell = dataclasses.replace(prof, flatten=dataclasses.replace(prof.flatten,
+    shell = dataclasses.replace(prof, flatten=dataclasses.replace(prof.flatten, method="isoline",
                                                                   simulation="shell"))
     plan = planner.run(tmp_path / "dome.npy", shell, tmp_path / "out")
     sim = plan.report["simulation"]

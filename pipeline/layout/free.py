@@ -33,7 +33,10 @@ class FreeLayout:
 
     xy : (n, 2) mm, the flat sheet; direction : (m, 2) unit print direction of each
     triangle in the layout; sigma : (m,) its shrink (clamped to the printable range);
-    iterations, residual : the solve's; flipped : triangles turned over in the layout;
+    iterations, residual, converged : the solve's (converged: it stopped before its cap);
+    flipped : triangles turned over in the layout; across_strain : how far the layout
+    stretches each triangle across ``d``, where it must keep its length ({mean_abs,
+    max_abs}; the isoline method's ``bridge_strain``);
     invalid_area_fraction, stretch_area_fraction, overshrink_area_fraction : shares of the
     sheet whose map leaves the admissible set by more than 1 %, and why.
     """
@@ -49,6 +52,8 @@ class FreeLayout:
     overshrink_area_fraction: float
     invalid_edge_fraction: float = 0.0
     timing_s: dict = field(default_factory=dict)
+    converged: bool = False
+    across_strain: dict = field(default_factory=dict)
 
     @property
     def overlapping(self):
@@ -57,7 +62,13 @@ class FreeLayout:
     def report(self):
         """The ``flatten`` section of the report for this method."""
         s = self.sigma
+        # The isoline method's keys too, where they mean the same, so that a tool reading
+        # one method's report reads the other's; the layout is planar from the start.
         return {"method": "free", "iterations": int(self.iterations),
+                "converged": bool(self.converged), "overlapping": bool(self.overlapping),
+                "max_abs_z_mm": 0.0, "bridge_strain": dict(self.across_strain),
+                "stretch_area_fraction": float(self.stretch_area_fraction),
+                "overshrink_area_fraction": float(self.overshrink_area_fraction),
                 "residual": float(self.residual), "flipped_triangles": int(self.flipped),
                 "invalid_area_fraction": float(self.invalid_area_fraction),
                 "invalid_area": {"would_stretch": float(self.stretch_area_fraction),
@@ -171,7 +182,7 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
     X = (np.asarray(start_xy, dtype=float) if start_xy is not None else V[:, :2]).copy()
     mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
     setup = time.perf_counter() - t0
-    it, residual = 0, np.inf
+    it, residual, converged = 0, np.inf, False
     for it in range(1, iterations + 1):
         J = _jacobians(G, X, m)
         P, _, _ = project(J, lam_lo, lam_hi)
@@ -182,6 +193,7 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
         move = float(np.abs(Xn - X).max())
         X = Xn - Xn.mean(axis=0) + X.mean(axis=0)
         if move < tol * mean_edge:
+            converged = True
             break
     J = _jacobians(G, X, m)
     _, lam, U = project(J, lam_lo, lam_hi)
@@ -192,12 +204,22 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
     total = area.sum()
     flipped = int(np.count_nonzero(np.linalg.det(J) <= 0))
     return FreeLayout(xy=X, direction=d, sigma=sigma, iterations=it, residual=residual,
-                      flipped=flipped,
+                      flipped=flipped, converged=converged, across_strain=_across_strain(J, d),
                       invalid_area_fraction=float(area[stretch | over].sum() / total),
                       stretch_area_fraction=float(area[stretch].sum() / total),
                       overshrink_area_fraction=float(area[over].sum() / total),
                       invalid_edge_fraction=_invalid_edges_along(J, d, X, faces, lam_lo, lam_hi),
                       timing_s={"setup": setup, "total": time.perf_counter() - t0})
+
+
+def _across_strain(J, d):
+    """Strain of the layout across each triangle's print direction ``d`` ((m, 2) unit),
+    from the Jacobians ``J`` ((m, 2, 2), target -> layout): {mean_abs, max_abs}."""
+    across = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    target = np.linalg.solve(J, across[:, :, None])[:, :, 0]
+    strain = 1.0 / np.maximum(np.linalg.norm(target, axis=1), 1e-12) - 1.0
+    return {"mean_abs": float(np.abs(strain).mean()) if len(strain) else 0.0,
+            "max_abs": float(np.abs(strain).max()) if len(strain) else 0.0}
 
 
 def _jacobians(G, X, m):

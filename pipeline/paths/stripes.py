@@ -255,8 +255,9 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
 
 
 def direction_angles(points, xy, faces, direction):
-    """Angle (degrees) between each path segment and the print direction of the triangle
-    its midpoint lies in, and the segment lengths: two (s,) arrays."""
+    """Angle (degrees) between each path segment and the direction ((m, 2), unit, or 0
+    where a triangle has none) of the triangle its midpoint lies in, and the segment
+    lengths, 0 where there is no direction to compare with: two (s,) arrays."""
     from scipy.spatial import cKDTree
     seg = [np.asarray(p) for p in points]
     a = np.concatenate([p[:-1] for p in seg])
@@ -267,7 +268,19 @@ def direction_angles(points, xy, faces, direction):
     t = b - a
     length = np.linalg.norm(t, axis=1)
     cos = np.abs(np.einsum("sc,sc->s", t, direction[f])) / np.maximum(length, 1e-12)
-    return np.degrees(np.arccos(np.clip(cos, 0, 1))), length
+    known = np.linalg.norm(direction[f], axis=1) > 0.5
+    return np.degrees(np.arccos(np.clip(cos, 0, 1))), length * known
+
+
+def _isoline_directions(xy, faces, level):
+    """Unit direction of the isolines of ``level`` ((n,)) in each triangle, 0 where the
+    triangle is level: (m, 2)."""
+    from pipeline.geometry import hat_gradients
+    gphi, _ = hat_gradients(xy, faces)
+    g = np.einsum("mi,mid->md", np.asarray(level, dtype=float)[faces], gphi)
+    norm = np.linalg.norm(g, axis=1)
+    d = np.stack([-g[:, 1], g[:, 0]], axis=1) / np.maximum(norm, 1e-300)[:, None]
+    return np.where((norm > 1e-9)[:, None], d, 0.0)
 
 
 def _wrap(a):
@@ -297,7 +310,7 @@ def _vertex_areas(xy, faces):
 
 def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                      merge_sigma=0.005, link_factor=1.6, join_factor=JOIN_FACTOR,
-                     over_factor=OVER_FACTOR, refine=True, retract=REACH):
+                     over_factor=OVER_FACTOR, refine=True, retract=REACH, level=None):
     """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
     ends lie up to ``join_factor`` path widths apart joined first where the hop runs over
     other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), then chained into traces by short hops, as the
@@ -305,7 +318,9 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     crosses; the report adds ``direction_angle_deg``. With ``refine`` the phase is
     carried to finer triangles (:func:`plan_stripes`); path ends that come within
     ``retract`` path widths of another path are cut back
-    (:func:`pipeline.paths.ends.retract_ends`; 0: not cut)."""
+    (:func:`pipeline.paths.ends.retract_ends`; 0: not cut). With ``level`` ((n,) the
+    height of each vertex) the report also says how far the paths turn away from the
+    isolines (``isoline_angle_deg``, as the isoline method's report does)."""
     import shapely
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
@@ -331,6 +346,11 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     ang, length = direction_angles([p for p, _ in raw], xy, faces, direction)
     info["direction_angle_deg"] = dict(zip(("p50", "p95"),
                                            _weighted_percentiles(ang, length, [50, 95])))
+    if level is not None:
+        ang, length = direction_angles([p for p, _ in raw], xy, faces,
+                                       _isoline_directions(xy, faces, level))
+        info["isoline_angle_deg"] = dict(zip(("p50", "p95"),
+                                             _weighted_percentiles(ang, length, [50, 95])))
     # Which cure a bare patch needs: forks come from a phase the triangles cannot
     # resolve (or a field with curl), branches from the field's own singular points.
     info["pathless_triangles"] = int((pathless > 0).sum())

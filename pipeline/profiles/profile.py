@@ -118,7 +118,7 @@ class MeshParams:
 class FlattenParams:
     """The layout method; projective-dynamics iterations and constraint weights of the
     isoline method (paper 6.2 defaults); local/global iterations of the free one."""
-    method: str = _str("isoline", choices=("isoline", "free"))
+    method: str = _str("free", choices=("isoline", "free"))
     iterations: int = _num(50, integer=True)
     free_iterations: int = _num(200, integer=True)
     # How the plan checks an isoline layout: the paper's projective dynamics, or the
