@@ -118,3 +118,22 @@ def test_the_dear_hop_cost_is_asked_only_of_joins_still_possible_and_changes_not
             upfront.append((x, y))
     assert lazy.tolist() == [list(j) for j in upfront] and len(lazy) > 100
     assert sum(asked) < len(ea) / 2
+
+
+def test_a_short_join_in_the_wrong_place_does_not_break_a_serpentine():
+    # Four paths a width apart whose right ends alternate 0.2 mm in and out along the
+    # sheet's edge; their left ends lie too far apart to join. The shortest join, the
+    # two middle ends, would leave the outer two ends loose (joining them would cross
+    # the middle paths); joined in outer pairs, no right end is left loose.
+    sheet = shapely.box(-10, -1, 11, 2)
+    shapely.prepare(sheet)
+    chains = []
+    for k in range(4):
+        x1 = 10.2 if k in (0, 3) else 10.0
+        p = np.c_[np.linspace(-3 * k, x1, 21), np.full(21, 0.5 * k)]
+        chains.append((p, np.full(20, 0.2), False))
+    samples, label, tree = path_samples([p for p, _, _ in chains], PW)
+    joins = join_ends(chains, PW, 4 * PW, sheet, samples, label, tree)
+    assert {tuple(j) for j in joins.tolist()} == {(1, 3), (5, 7)}
+    merged, hops = merge_joined(chains, joins)
+    assert len(merged) == 2 and len(hops) == 2
