@@ -55,14 +55,15 @@ class CurvatureProgram:
                                 "max_abs": float(np.abs(self.delta_sigma).max())}}
 
 
-def isoline_directions(xy, faces, vertex_level):
+def isoline_directions(xy, faces, vertex_level, level=(1.0, 0.0)):
     """Print direction of each triangle of an isoline layout: along the isolines,
-    i.e. across the gradient of the isoline height in the layout: (m, 2) unit."""
+    i.e. across the gradient of the isoline height in the layout: (m, 2) unit, and
+    ``level`` in a triangle without a gradient."""
     gphi, _ = hat_gradients(np.asarray(xy, dtype=float), faces)
     grad = np.einsum("mi,mid->md", np.asarray(vertex_level, dtype=float)[faces], gphi)
     d = np.stack([-grad[:, 1], grad[:, 0]], axis=1)
     norm = np.linalg.norm(d, axis=1)
-    d[norm < 1e-12] = (1.0, 0.0)
+    d[norm < 1e-12] = level
     norm[norm < 1e-12] = 1.0
     return d / norm[:, None]
 

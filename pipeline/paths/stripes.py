@@ -272,17 +272,6 @@ def direction_angles(points, xy, faces, direction):
     return np.degrees(np.arccos(np.clip(cos, 0, 1))), length * known
 
 
-def _isoline_directions(xy, faces, level):
-    """Unit direction of the isolines of ``level`` ((n,)) in each triangle, 0 where the
-    triangle is level: (m, 2)."""
-    from pipeline.geometry import hat_gradients
-    gphi, _ = hat_gradients(xy, faces)
-    g = np.einsum("mi,mid->md", np.asarray(level, dtype=float)[faces], gphi)
-    norm = np.linalg.norm(g, axis=1)
-    d = np.stack([-g[:, 1], g[:, 0]], axis=1) / np.maximum(norm, 1e-300)[:, None]
-    return np.where((norm > 1e-9)[:, None], d, 0.0)
-
-
 def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
@@ -347,8 +336,9 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["direction_angle_deg"] = dict(zip(("p50", "p95"),
                                            _weighted_percentiles(ang, length, [50, 95])))
     if level is not None:
+        from pipeline.layout.curvature import isoline_directions
         ang, length = direction_angles([p for p, _ in raw], xy, faces,
-                                       _isoline_directions(xy, faces, level))
+                                       isoline_directions(xy, faces, level, level=(0.0, 0.0)))
         info["isoline_angle_deg"] = dict(zip(("p50", "p95"),
                                              _weighted_percentiles(ang, length, [50, 95])))
     # Which cure a bare patch needs: forks come from a phase the triangles cannot
