@@ -55,15 +55,8 @@ def build_grid_mesh(hf, spacing_mm=1.0):
         raise MeshingError("the footprint is narrower than the mesh spacing (%.3g mm)"
                            % spacing_mm, code="mesh.too_small",
                            fix="make the part larger (size_mm) or lower mesh.grid_mm")
-    used = np.unique(faces)
-    remap = np.full(len(pts), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    faces = _one_piece(remap[faces])
-    used2 = np.unique(faces)
-    remap2 = np.full(len(used), -1, dtype=np.int64)
-    remap2[used2] = np.arange(len(used2))
-    faces = remap2[faces]
-    xy = pts[used][used2]
+    xy, faces = _compact(pts, faces)
+    xy, faces = _compact(xy, _one_piece(faces))
     xy, faces = follow_edge(hf, inside, xy, faces, spacing_mm)
     zz = _heights(hf, z, inside, xy)
     V = np.c_[xy, zz]
@@ -107,11 +100,15 @@ def follow_edge(hf, inside, xy, faces, spacing_mm):
         # Where a triangle would turn over or squash, its corners stay on the grid.
         back = np.unique(faces[bad])
         moved[back] = xy[back]
-    faces = _one_piece(faces)
+    return _compact(moved, _one_piece(faces))
+
+
+def _compact(xy, faces):
+    """Only the vertices ``faces`` use, renumbered in order: (xy, faces)."""
     used = np.unique(faces)
     remap = np.full(len(xy), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
-    return moved[used], remap[faces]
+    return xy[used], remap[faces]
 
 
 def _edge_distance(inside, px):
