@@ -26,7 +26,8 @@ from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
 from pipeline.paths.isoline import plan_toolpaths
-from pipeline.problems import (BLOCKING, INVALID_AREA_WARN, fold_area_fraction,
+from pipeline.errors import PipelineError
+from pipeline.problems import (BLOCKING, FOLD_LIMIT, INVALID_AREA_WARN, fold_area_fraction,
                                free_layout_problems, layout_problems, other_method_problems,
                                simulation_problems)
 from pipeline.paths.stripes import stripe_toolpaths
@@ -130,6 +131,7 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     timing["validate"] = time.perf_counter() - t
     result.hf = hf
 
+    given = hf
     if profile.flatten.method == "free":
         hf = _fitted(result, hf, profile, sidecar, opts, stage, timing, force_fit)
         result.hf = hf
@@ -143,8 +145,11 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     result.report = _report(path, profile, result, vrep, srep, timing)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
-    if profile.flatten.method == "isoline" and not result.printable:
-        result.report["other_method"] = _free_would(hf, profile)
+    if not result.printable:
+        t = time.perf_counter()
+        would = _free_would if profile.flatten.method == "isoline" else _isoline_would
+        result.report["other_method"] = would(given, profile)
+        result.report["timing_s"]["other_method"] = round(time.perf_counter() - t, 4)
         result.problems += other_method_problems(result.report["other_method"], path.stem)
     result.report.update(gate=section, printable=result.printable,
                          needs_decision=result.needs_decision, warnings=list(result.problems))
@@ -168,6 +173,34 @@ def _free_would(hf, profile):
             "flipped": int(flat.flipped), "would_form": bool(would)}
 
 
+def _isoline_would(hf, profile):
+    """Whether the paper's layout method would form this relief (as given, not fitted):
+    its invalid area and folds, or the error its mesher stops with. Its layout is
+    solved at the plan's own mesh size: on the real tiles a coarser one answers
+    differently (the coast tile 54 % invalid at the plan's size, 37 % at twice it)."""
+    mp, lim, fp = profile.mesh, profile.shrink_limits, profile.flatten
+    out = {"method": "isoline"}
+    try:
+        mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
+                          gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
+    except PipelineError as err:
+        return {**out, "would_form": False, "error": err.code, "error_message": str(err)}
+    flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
+                   weights=_isoline_weights(fp))
+    fold = fold_area_fraction(flat.xy, mesh.faces)
+    would = fold <= FOLD_LIMIT and flat.invalid_area_fraction <= profile.printable.max_invalid_area
+    return {**out, "invalid_area_fraction": float(flat.invalid_area_fraction),
+            "flipped": int(flat.flipped_triangles), "fold_area_fraction": fold,
+            "would_form": bool(would)}
+
+
+def _isoline_weights(fp):
+    """The isoline layout's constraint weights from the profile's ``flatten`` section."""
+    return {"bridge": fp.w_bridge, "printing": fp.w_printing, "bending": fp.w_bending,
+            "shear": fp.w_shear, "flattening": fp.w_flattening,
+            "stretching": fp.w_stretching, "spreading": fp.w_spreading}
+
+
 def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
     """The paper's method: isoline mesh, isoline layout, paths along the isolines."""
     mp = profile.mesh
@@ -182,9 +215,7 @@ def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
     fp = profile.flatten
     lim = profile.shrink_limits
     t = stage("flatten", "%d triangles, up to %d iterations" % (len(mesh.faces), fp.iterations))
-    weights = {"bridge": fp.w_bridge, "printing": fp.w_printing, "bending": fp.w_bending,
-               "shear": fp.w_shear, "flattening": fp.w_flattening,
-               "stretching": fp.w_stretching, "spreading": fp.w_spreading}
+    weights = _isoline_weights(fp)
     flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
                    weights=weights)
     result.flat = flat

@@ -112,14 +112,17 @@ def simulation_problems(sim):
 
 def other_method_problems(other, name):
     """A note on a plan that is not printable: whether the other layout method forms it."""
+    method = other["method"]
+    label = "the free layout method" if method == "free" else "the paper's (isoline) layout method"
     if not other["would_form"]:
+        why = (("its mesher stops: %s" % other["error_message"]) if "error" in other else
+               "%.0f %% of the sheet outside what the material can make, %d folded triangles"
+               % (100 * other["invalid_area_fraction"], other["flipped"]))
         return [{"code": "plan.other_method",
-                 "message": "the free layout method does not form it either (%.0f %% of the "
-                            "sheet outside what the material can make, %d folded triangles)"
-                            % (100 * other["invalid_area_fraction"], other["flipped"]),
+                 "message": "%s does not form it either (%s)" % (label, why),
                  "fix": "lower or smooth the relief (height_mm, smooth_mm in %s.yaml)" % name}]
     return [{"code": "plan.other_method",
-             "message": "the free layout method forms this sheet (%.1f %% of it outside what "
-                        "the material can make, no folds)" % (100 * other["invalid_area_fraction"]),
-             "fix": "write `method: free` in %s.yaml (or plan with `hostd plan --method free`)"
-                    % name}]
+             "message": "%s forms this sheet (%.1f %% of it outside what the material can "
+                        "make, no folds)" % (label, 100 * other["invalid_area_fraction"]),
+             "fix": "write `method: %s` in %s.yaml (or plan with `hostd plan --method %s`)"
+                    % (method, name, method)}]
