@@ -203,11 +203,14 @@ def _blocked_first(plan, error):
     if not blocking:
         return error
     first = blocking[0]
-    return PlanError("%s; besides, its G-code cannot be written: %s" % (
-                         first["message"], error.message),
+    # No report is written without G-code: the other method's answer goes with the error.
+    other = [p["message"] for p in plan.problems if p["code"] == "plan.other_method"]
+    return PlanError("%s; besides, its G-code cannot be written: %s%s" % (
+                         first["message"], error.message, "".join("; " + m for m in other)),
                      code=first["code"], fix=first["fix"],
                      details={"gcode": {"code": error.code, "message": error.message,
-                                        "where": error.where, **error.details}})
+                                        "where": error.where, **error.details},
+                              "other_method": plan.report.get("other_method")})
 
 
 def _mark_not_printable(path, problems):

@@ -82,6 +82,10 @@ def test_a_refused_relief_whose_layout_leaves_the_bed_is_reported_by_its_own_fix
     assert e.details["gcode"]["code"] == "gcode.off_bed"
     assert "does not fit the 61 x 61 mm bed" in e.message
     assert (tmp_path / "out" / "cone.error.json").exists()
+    # Nor does the paper's method lay out a cone this steep, and the error says so.
+    assert e.details["other_method"]["method"] == "isoline"
+    assert not e.details["other_method"]["would_form"]
+    assert "isoline) layout method does not form it either" in e.message
 
 
 def test_fit_off_keeps_the_relief(tmp_path):
