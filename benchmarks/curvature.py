@@ -45,7 +45,8 @@ def study(path):
     from pipeline.layout import curvature
     from pipeline.mechanics.constraints import topology
     from pipeline.mechanics.shell import dihedral
-    from pipeline.plan import BATH_BUMP, plan_file
+    from pipeline.plan import plan_file
+    from pipeline.simulation.programmed import BATH_BUMP
     from pipeline.profiles.profile import load_profile
     from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
     prof = load_profile("generic-0.5mm")

@@ -35,6 +35,8 @@ PLAN_COLUMNS = [
     ("at rest", lambda n, r: _rest(r)),
     ("arm tips mm", lambda n, r: None if not r.get("arm_tips_mm") else
      "max %.1f" % max(r["arm_tips_mm"])),
+    ("holds smoothed to", lambda n, r: None if r.get("hold_smooth_mm") is None else
+     "%g mm: %s" % (r["hold_smooth_mm"], _pct(r.get("hold_displacement")))),
     ("traces", lambda n, r: r.get("traces")),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
@@ -44,6 +46,7 @@ PLAN_COLUMNS = [
     ("all stages s", lambda n, r: _median(r, "all_stages_s")),
     ("wall s", lambda n, r: _median(r, "wall_s")),
     ("paths + G-code s", lambda n, r: _f(r.get("toolpath_gcode_s"), 1)),
+    ("looks s", lambda n, r: _f(r.get("looks_s"), 1) if r.get("looks_s") else None),
     ("peak RSS MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
     ("G-code lines", lambda n, r: _k(r.get("gcode_lines"))),
     ("moves/s", lambda n, r: _f(r.get("moves_per_s"), 0)),

@@ -99,7 +99,11 @@ if r["input"].startswith("starfish"):
     sector = ((np.arctan2(c[:, 1], c[:, 0]) + np.pi) / (2 * np.pi) * 5).astype(int) % 5
     tips = [round(float(sim.displacement_mm[np.flatnonzero(sector == k)[
         np.argmax(r2[sector == k])]]), 2) for k in range(5)]
+hold = r.get("hold") or {}
 print(json.dumps({
+    "hold_smooth_mm": hold.get("smooth_mm"),
+    "hold_displacement": next((t[1] for t in hold.get("tried", []) if t[0] == hold.get("smooth_mm")), None),
+    "looks_s": round(ts.get("other_method", 0.0) + ts.get("hold", 0.0), 3),
     "method": fl.get("method"), "invalid_area_fraction": fl.get("invalid_area_fraction"),
     "flipped": fl.get("flipped"), "fit_scale": fit.get("applied_scale"),
     "fit_max_height_mm": fit.get("max_height_mm"), "fit_s": ts.get("fit"),

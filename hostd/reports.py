@@ -7,6 +7,9 @@ from pathlib import Path
 
 log = logging.getLogger("hostd.daemon")
 
+# The plan's notes on what else would print it (another layout method, a smoothing).
+ALTERNATIVES = ("plan.hold", "plan.other_method")
+
 
 def report_in(outbox):
     """The ``NAME.report.json`` in a job's outbox folder as a dict ({} when absent)."""
@@ -26,5 +29,10 @@ def decision(report):
     if not report.get("needs_decision"):
         return None
     outside = set(report.get("gate", {}).get("outside", []))
-    said = ["%s." % w["message"] for w in report.get("warnings", []) if w.get("code") in outside]
-    return "Outside the profile's printable limits: " + " ".join(said)
+    warnings = report.get("warnings", [])
+    said = ["%s." % w["message"] for w in warnings if w.get("code") in outside]
+    # What the plan found would print it, so the person deciding sees the other way too.
+    other = ["%s: %s." % (w["message"], w["fix"]) for w in warnings
+             if w.get("code") in ALTERNATIVES]
+    return ("Outside the profile's printable limits: " + " ".join(said)
+            + (" Instead: " + " ".join(other) if other else ""))

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import __version__, printable
+from pipeline import __version__, alternatives, printable
 from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
 from pipeline.input.simplify import simplify
@@ -26,13 +26,14 @@ from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
 from pipeline.paths.isoline import plan_toolpaths
-from pipeline.errors import PipelineError
-from pipeline.problems import (BLOCKING, FOLD_LIMIT, INVALID_AREA_WARN, fold_area_fraction,
-                               free_layout_problems, layout_problems, other_method_problems,
+from pipeline.problems import (BLOCKING, INVALID_AREA_WARN, fold_area_fraction,
+                               free_layout_problems, hold_problems, layout_problems,
+                               other_method_problems,
                                simulation_problems)
 from pipeline.paths.stripes import stripe_toolpaths
 from pipeline.simulation.forward import simulate
 from pipeline.simulation import inverted
+from pipeline.simulation.programmed import simulate_free
 from pipeline.simulation.resample import onto_grid
 from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
 
@@ -78,9 +79,6 @@ class Plan:
 
 
 STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
-# The programmed sheet's start: a small bump the way the program rises (from exactly
-# flat a sheet can creep, wrinkled, for hundreds of iterations before it pops).
-BATH_BUMP = 0.02
 
 
 def plan_file(path, profile, progress=None, force_fit=False, method=None):
@@ -146,59 +144,28 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
     if not result.printable:
-        t = time.perf_counter()
-        would = _free_would if profile.flatten.method == "isoline" else _isoline_would
-        result.report["other_method"] = would(given, profile)
-        result.report["timing_s"]["other_method"] = round(time.perf_counter() - t, 4)
-        result.problems += other_method_problems(result.report["other_method"], path.stem)
+        _alternatives(result, given, profile, opts, section, path.stem)
     result.report.update(gate=section, printable=result.printable,
                          needs_decision=result.needs_decision, warnings=list(result.problems))
     return result
 
 
-# The free method's quick look: a coarser grid and fewer iterations than its plan (a few
-# seconds on a 175 mm tile), enough to tell whether the sheet can form.
-QUICK_GRID_MM = 2.0
-QUICK_ITERATIONS = 100
-
-
-def _free_would(hf, profile):
-    """Whether the free layout method would form this sheet: its invalid area and folds."""
-    lim = profile.shrink_limits
-    mesh = build_grid_mesh(hf, max(profile.mesh.grid_mm, QUICK_GRID_MM))
-    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
-    would = (flat.flipped == 0
-             and flat.invalid_area_fraction <= profile.printable.max_invalid_area)
-    return {"method": "free", "invalid_area_fraction": float(flat.invalid_area_fraction),
-            "flipped": int(flat.flipped), "would_form": bool(would)}
-
-
-def _isoline_would(hf, profile):
-    """Whether the paper's layout method would form this relief (as given, not fitted):
-    its invalid area and folds, or the error its mesher stops with. Its layout is
-    solved at the plan's own mesh size: on the real tiles a coarser one answers
-    differently (the coast tile 54 % invalid at the plan's size, 37 % at twice it)."""
-    mp, lim, fp = profile.mesh, profile.shrink_limits, profile.flatten
-    out = {"method": "isoline"}
-    try:
-        mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
-                          gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
-    except PipelineError as err:
-        return {**out, "would_form": False, "error": err.code, "error_message": str(err)}
-    flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
-                   weights=_isoline_weights(fp))
-    fold = fold_area_fraction(flat.xy, mesh.faces)
-    would = fold <= FOLD_LIMIT and flat.invalid_area_fraction <= profile.printable.max_invalid_area
-    return {**out, "invalid_area_fraction": float(flat.invalid_area_fraction),
-            "flipped": int(flat.flipped_triangles), "fold_area_fraction": fold,
-            "would_form": bool(would)}
-
-
-def _isoline_weights(fp):
-    """The isoline layout's constraint weights from the profile's ``flatten`` section."""
-    return {"bridge": fp.w_bridge, "printing": fp.w_printing, "bending": fp.w_bending,
-            "shear": fp.w_shear, "flattening": fp.w_flattening,
-            "stretching": fp.w_stretching, "spreading": fp.w_spreading}
+def _alternatives(result, given, profile, opts, section, name):
+    """What would print a plan the gate turned down: the other layout method, and for a
+    free sheet that ends too far from the shape, the smoothing at which it holds."""
+    free = profile.flatten.method == "free"
+    t = time.perf_counter()
+    would = alternatives.isoline_would if free else alternatives.free_would
+    result.report["other_method"] = would(given, profile)
+    result.report["timing_s"]["other_method"] = round(time.perf_counter() - t, 4)
+    result.problems += other_method_problems(result.report["other_method"], name)
+    if free and "printable.displacement" in section["outside"] and not result.blocked:
+        t = time.perf_counter()
+        result.report["hold"] = alternatives.smoothing_that_holds(
+            result.validated, profile, opts, result.report["heightfield"]["longest_diameter_mm"],
+            fit_height_too=result.fit is not None)
+        result.report["timing_s"]["hold"] = round(time.perf_counter() - t, 4)
+        result.problems += hold_problems(result.report["hold"], opts["smooth_mm"], name)
 
 
 def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
@@ -215,7 +182,7 @@ def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
     fp = profile.flatten
     lim = profile.shrink_limits
     t = stage("flatten", "%d triangles, up to %d iterations" % (len(mesh.faces), fp.iterations))
-    weights = _isoline_weights(fp)
+    weights = fp.weights()
     flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
                    weights=weights)
     result.flat = flat
@@ -340,17 +307,7 @@ def _free_sheet(result, hf, profile, stage, timing):
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
     result.problems += free_layout_problems(flat, result.fold_fraction)
     t = stage("simulate", "forward simulation of the flat sheet (thin shell)")
-    sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
-    rest = directional_rest(flat.xy, mesh.faces, flat.direction, sigma)
-    thick = thickness_for(sigma, profile.shrink_curve, profile.layers,
-                          profile.thickness_mm.min, profile.thickness_mm.max)
-    # Curvature through the layers: the lower layers shrink more where the target
-    # rises, so bending pulls toward the target instead of toward flat.
-    result.curvature = curvature.program(
-        curvature.along_print_direction(hf, mesh, flat), mesh.faces, flat.xy, flat.direction,
-        sigma, thick, lim.s_min, lim.s_max, c=profile.curvature.bilayer_c)
-    sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick,
-                         theta_rest=result.curvature.theta_rest, pop=BATH_BUMP)
+    result.curvature, sim = simulate_free(hf, mesh, flat, profile)
     result.sim = sim
     result.problems += simulation_problems(sim)
     timing["simulate"] = time.perf_counter() - t
@@ -358,6 +315,7 @@ def _free_sheet(result, hf, profile, stage, timing):
               % profile.path_width_mm)
     result.xy_bed = _on_bed(flat.xy, profile)
     tp = profile.toolpath
+    sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
     result.toolpaths = stripe_toolpaths(result.xy_bed, mesh.faces, flat.direction, sigma,
                                         profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
                                         merge_sigma=tp.merge_sigma, level=mesh.vertex_level)

@@ -126,3 +126,26 @@ def other_method_problems(other, name):
                         "make, no folds)" % (label, 100 * other["invalid_area_fraction"]),
              "fix": "write `method: %s` in %s.yaml (or plan with `hostd plan --method %s`)"
                     % (method, name, method)}]
+
+
+def hold_problems(hold, smooth_mm, name):
+    """A note on a free plan whose sheet ends too far from the shape: the smoothing at
+    which it would hold (the report's ``hold``), as the sidecar line to write."""
+    if not hold["tried"]:
+        return []
+    worst = max(hold["tried"], key=lambda t: t[0])
+    if hold["smooth_mm"] is None:
+        return [{"code": "plan.hold",
+                 "message": "smoothed as much as %g mm the simulated sheet still ends %.1f %% "
+                            "of its diameter from the shape (the profile allows %.1f %%)"
+                            % (worst[0], 100 * worst[1], 100 * hold["limit"]),
+                 "fix": "lower the relief (height_mm in %s.yaml)" % name}]
+    got = next(t for t in hold["tried"] if t[0] == hold["smooth_mm"])
+    return [{"code": "plan.hold",
+             "message": "smoothed to %g mm instead of %g mm the sheet holds the shape: it "
+                        "ends %.1f %% of its diameter from it (simulated on a %g mm mesh, "
+                        "%.1f mm high); features narrower than that do not form in a sheet "
+                        "this thick" % (hold["smooth_mm"], smooth_mm, 100 * got[1],
+                                        hold["grid_mm"], got[3]),
+             "fix": "write `smooth_mm: %g` in %s.yaml to print the smoothed shape"
+                    % (hold["smooth_mm"], name)}]

@@ -84,13 +84,13 @@ def test_an_unknown_method_is_refused_with_the_choices(tmp_path):
 
 
 def test_an_isoline_mesher_that_stops_is_named_in_the_note(tmp_path, monkeypatch):
-    from pipeline import plan as plan_module
+    from pipeline import alternatives
     from pipeline.errors import MeshingError
 
     def stops(*args, **kwargs):
         raise MeshingError("isolines cross at (3, 4) mm", code="mesh.overlap")
 
-    monkeypatch.setattr(plan_module, "build_mesh", stops)
+    monkeypatch.setattr(alternatives, "build_mesh", stops)
     r = plan_file(_dome(tmp_path, "free"), load_profile("generic-0.5mm")).report
     assert r["other_method"] == {"method": "isoline", "would_form": False,
                                  "error": "mesh.overlap",

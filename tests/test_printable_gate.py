@@ -92,3 +92,18 @@ def test_the_daemon_holds_it_at_ready_until_a_person_approves(tmp_path, monkeypa
             d._do_approve(job()["id"])
     finally:
         d.shutdown()
+
+
+def test_the_decision_names_what_would_print_it():
+    from hostd.reports import decision
+    report = {"needs_decision": True, "gate": {"outside": ["printable.displacement"]},
+              "warnings": [
+                  {"code": "printable.displacement", "message": "the sheet ends 4 % off",
+                   "fix": "a smoother relief departs less"},
+                  {"code": "plan.hold", "message": "smoothed to 6 mm the sheet holds",
+                   "fix": "write `smooth_mm: 6` in x.yaml"},
+                  {"code": "fit.lowered", "message": "lowered", "fix": "nothing to do"}]}
+    said = decision(report)
+    assert said.startswith("Outside the profile's printable limits: the sheet ends 4 % off.")
+    assert "Instead: smoothed to 6 mm the sheet holds: write `smooth_mm: 6` in x.yaml." in said
+    assert "lowered" not in said

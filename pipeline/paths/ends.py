@@ -52,7 +52,6 @@ def retract_ends(chains, pw, reach=REACH, longest=LONGEST):
     crowded[ask] = _crowded(ask, samples, label, tree, to_end, length, pw, reach)
     P = np.concatenate(paths)
     at, pb = _arc(P, np.repeat(np.arange(len(paths)), [len(p) for p in paths]))
-    out = []
     for c in np.flatnonzero(~closed).tolist():
         lo, hi = bounds[c], bounds[c + 1]
         if not (crowded[lo] or crowded[hi - 1]):

@@ -132,6 +132,13 @@ class FlattenParams:
     w_stretching: float = _num(1.0, strict=False)
     w_spreading: float = _num(0.5, strict=False)
 
+    def weights(self):
+        """The isoline layout's constraint weights, by the names the solver knows them."""
+        return {"bridge": self.w_bridge, "printing": self.w_printing,
+                "bending": self.w_bending, "shear": self.w_shear,
+                "flattening": self.w_flattening, "stretching": self.w_stretching,
+                "spreading": self.w_spreading}
+
 
 @dataclass(frozen=True)
 class ToolpathParams:

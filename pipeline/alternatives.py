@@ -1,0 +1,106 @@
+"""What would make a plan that is not printable print: the other layout method, and for a
+free sheet that does not hold its shape, the least smoothing at which it would.
+
+Each is a quick look, asked only of a plan the gate turned down, and answered as a
+report section; :mod:`pipeline.problems` words it as a note with the sidecar line.
+"""
+
+import time
+
+import numpy as np
+
+from pipeline.errors import PipelineError
+from pipeline.input.simplify import simplify
+from pipeline.layout import curvature
+from pipeline.layout.fit import fit_height, least_smoothing, scaled
+from pipeline.layout.free import FREE_BELOW, flatten_free
+from pipeline.layout.isoline import flatten
+from pipeline.meshing.grid import build_grid_mesh
+from pipeline.meshing.isoline import build_mesh
+from pipeline.problems import FOLD_LIMIT, fold_area_fraction
+from pipeline.simulation.programmed import simulate_free
+
+# The free method's quick looks: a coarser grid and fewer iterations than its plan (a
+# few seconds on a 175 mm tile); the thin shell's displacement changes by less than a
+# tenth from this grid to the plan's.
+QUICK_GRID_MM = 2.0
+QUICK_ITERATIONS = 100
+# The smoothing looked for doubles up to this share of the field's longest side: on the
+# real tiles the sheet holds within 3 % at 6 mm, a sixteenth of their side.
+HOLD_CAP = 0.1
+
+
+def free_would(hf, profile):
+    """Whether the free layout method would form this sheet: its invalid area and folds."""
+    lim = profile.shrink_limits
+    mesh = build_grid_mesh(hf, max(profile.mesh.grid_mm, QUICK_GRID_MM))
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
+    would = (flat.flipped == 0
+             and flat.invalid_area_fraction <= profile.printable.max_invalid_area)
+    return {"method": "free", "invalid_area_fraction": float(flat.invalid_area_fraction),
+            "flipped": int(flat.flipped), "would_form": bool(would)}
+
+
+def isoline_would(hf, profile):
+    """Whether the paper's layout method would form this relief (as given, not fitted):
+    its invalid area and folds, or the error its mesher stops with. Its layout is
+    solved at the plan's own mesh size: on the real tiles a coarser one answers
+    differently (the coast tile 54 % invalid at the plan's size, 37 % at twice it)."""
+    mp, lim, fp = profile.mesh, profile.shrink_limits, profile.flatten
+    out = {"method": "isoline"}
+    try:
+        mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
+                          gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
+    except PipelineError as err:
+        return {**out, "would_form": False, "error": err.code, "error_message": str(err)}
+    flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
+                   weights=fp.weights())
+    fold = fold_area_fraction(flat.xy, mesh.faces)
+    would = fold <= FOLD_LIMIT and flat.invalid_area_fraction <= profile.printable.max_invalid_area
+    return {**out, "invalid_area_fraction": float(flat.invalid_area_fraction),
+            "flipped": int(flat.flipped_triangles), "fold_area_fraction": fold,
+            "would_form": bool(would)}
+
+
+def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
+    """The least smoothing at which the simulated free sheet ends within the profile's
+    displacement limit: the report's ``hold`` section (``smooth_mm``, None where none up
+    to the cap holds; ``tried``: [smooth_mm, displacement share, relief scale, relief mm]
+    per look).
+
+    A thin sheet cannot bend into features much narrower than it is stiff (the real
+    tiles' ridges, a few mm across, come out as one smooth hill); smoothed, the same
+    terrain forms, and, no longer bound by its steepest narrow slopes, at a higher
+    relief. validated : the HeightField as validated, before any smoothing; opts : the
+    sidecar's settings (``min_prominence_mm``, ``smooth_mm``); diameter_mm : the
+    longest diameter the displacement is a share of; fit_height_too : the plan fitted
+    the relief, so each look fits it anew (else the relief is as given).
+    """
+    t0 = time.perf_counter()
+    lim, limit = profile.shrink_limits, profile.printable.max_mean_displacement
+    size = max(validated.z.shape) * validated.pixel_mm
+    # A small field on the quick grid would be a few cells across: there the plan's own.
+    grid = float(np.clip(size / 50.0, profile.mesh.grid_mm, QUICK_GRID_MM))
+    tried = []
+
+    def holds(smooth):
+        hf = simplify(validated, opts["min_prominence_mm"], smooth)[0]
+        scale = 1.0
+        if fit_height_too:
+            scale = fit_height(hf, lim.s_min, lim.s_max, smooth, grid_mm=grid,
+                               fine_steps=0).applied_scale
+            hf = scaled(hf, scale)
+        mesh = build_grid_mesh(hf, grid)
+        flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
+        flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+        _, sim = simulate_free(hf, mesh, flat, profile)
+        share = sim.mean_displacement_mm / diameter_mm
+        relief = float(np.nanmax(hf.z) - np.nanmin(hf.z))
+        tried.append([float(smooth), round(float(share), 5), round(float(scale), 4),
+                      round(relief, 2)])
+        return flat.flipped == 0 and share <= limit
+
+    cap = HOLD_CAP * size
+    found = least_smoothing(holds, opts["smooth_mm"], cap_mm=cap)
+    return {"smooth_mm": found, "limit": limit, "grid_mm": grid, "cap_mm": round(cap, 2),
+            "tried": tried, "seconds": round(time.perf_counter() - t0, 2)}

@@ -1,0 +1,53 @@
+"""A free sheet that does not hold its shape says at which smoothing it would, and that
+smoothing, written in the sidecar, plans a sheet that holds it."""
+
+import dataclasses
+
+import numpy as np
+
+from pipeline.input import shapes
+from pipeline.plan import plan_file
+from pipeline.profiles.profile import load_profile
+
+
+def _ridged(tmp_path, extra=""):
+    # Ridges a few mm across on a 60 mm starfish: the sheet rises as one smooth hill.
+    hf = shapes.starfish_ridged(diameter_mm=60.0, height_mm=12.0)
+    path = tmp_path / "ridged.npy"
+    np.save(path, hf.z)
+    path.with_name("ridged.yaml").write_text("pixel_mm: %r\nmethod: free\n%s"
+                                              % (float(hf.pixel_mm), extra))
+    return path
+
+
+def test_a_sheet_that_does_not_hold_is_offered_the_smoothing_that_does(tmp_path):
+    prof = load_profile("generic-0.5mm")
+    r = plan_file(_ridged(tmp_path), prof).report
+    assert "printable.displacement" in r["gate"]["outside"]
+    hold = r["hold"]
+    assert hold["smooth_mm"] is not None and hold["smooth_mm"] > 1.0
+    assert all(t[1] > prof.printable.max_mean_displacement
+               for t in hold["tried"] if t[0] < hold["smooth_mm"])
+    note = [w for w in r["warnings"] if w["code"] == "plan.hold"]
+    line = "smooth_mm: %g" % hold["smooth_mm"]
+    assert note and line in note[0]["fix"] and "ridged.yaml" in note[0]["fix"]
+    # Following the note: the plan of the smoothed relief holds its shape.
+    again = plan_file(_ridged(tmp_path, line + "\n"), prof).report
+    assert again["printable"], again["gate"]
+    assert "hold" not in again
+
+
+def test_a_sheet_no_smoothing_holds_says_so(tmp_path):
+    prof = load_profile("generic-0.5mm")
+    prof = dataclasses.replace(prof, printable=dataclasses.replace(
+        prof.printable, max_mean_displacement=1e-6))
+    r = plan_file(_ridged(tmp_path), prof).report
+    assert r["hold"]["smooth_mm"] is None and r["hold"]["tried"]
+    assert max(t[0] for t in r["hold"]["tried"]) <= r["hold"]["cap_mm"]
+    note = [w for w in r["warnings"] if w["code"] == "plan.hold"][0]
+    assert "still ends" in note["message"] and "height_mm" in note["fix"]
+
+
+def test_a_sheet_that_holds_is_not_looked_at(tmp_path):
+    r = plan_file(_ridged(tmp_path, "smooth_mm: 5\n"), load_profile("generic-0.5mm")).report
+    assert r["printable"] and "hold" not in r and "other_method" not in r
