@@ -144,8 +144,7 @@ def hold_problems(hold, smooth_mm, name):
     return [{"code": "plan.hold",
              "message": "smoothed to %g mm instead of %g mm the sheet holds the shape: it "
                         "ends %.1f %% of its diameter from it (simulated on a %g mm mesh, "
-                        "%.1f mm high); features narrower than that do not form in a sheet "
-                        "this thick" % (hold["smooth_mm"], smooth_mm, 100 * got[1],
-                                        hold["grid_mm"], got[3]),
+                        "%.1f mm high); features narrower than that do not form in this sheet"
+                        % (hold["smooth_mm"], smooth_mm, 100 * got[1], hold["grid_mm"], got[3]),
              "fix": "write `smooth_mm: %g` in %s.yaml to print the smoothed shape"
                     % (hold["smooth_mm"], name)}]
