@@ -34,6 +34,9 @@ def _field(kind, c):
     elif kind == "turn":           # turns by 90 degrees across the sheet
         a = (c[:, 0] + 30) / 60 * np.pi / 2
         d = np.stack([np.cos(a), np.sin(a)], 1)
+    elif kind == "monkey":         # a monkey saddle's: paths fan out, forking everywhere
+        a = -2 * np.arctan2(c[:, 1], c[:, 0])
+        d = np.stack([np.cos(a), np.sin(a)], 1)
     else:                          # two +1/2 singular points at (-10, 0) and (10, 0)
         z = ((c[:, 0] - 10) + 1j * c[:, 1]) * ((c[:, 0] + 10) + 1j * c[:, 1])
         d = np.stack([np.cos(np.angle(z) / 2), np.sin(np.angle(z) / 2)], 1)
@@ -60,6 +63,26 @@ def test_paths_cover_the_sheet(kind):
 
 def test_paths_cover_a_sheet_with_two_half_singularities():
     assert _plan("two_half")["coverage"] > 0.95
+
+
+def _drawn(xy, faces, normal, width):
+    phase, X, solved = stripes.stripe_phase_at_width(xy, faces, normal, width,
+                                                     stripes.WIDTH_TOL)
+    u, bare = stripes.corner_phases(xy, faces, phase, X, solved)
+    return stripes.drawn_spacing(xy, faces, u, bare == 0)
+
+
+def test_fanning_paths_are_drawn_a_path_width_apart(monkeypatch):
+    xy, faces = _disk()
+    d = _field("monkey", xy[faces].mean(axis=1))
+    normal = np.stack([-d[:, 1], d[:, 0]], 1)
+    assert abs(_drawn(xy, faces, normal, WIDTH) / WIDTH - 1) <= stripes.WIDTH_TOL
+    corrected = _plan("monkey")
+    # As asked, the cheapest pattern draws them closer, and prints more of it twice.
+    monkeypatch.setattr(stripes, "WIDTH_TOL", 10.0)
+    assert _drawn(xy, faces, normal, WIDTH) < 0.99 * WIDTH
+    assert _plan("monkey")["overlap"] > corrected["overlap"] + 0.003
+    assert corrected["coverage"] > 0.95
 
 
 def _waves(refine=True, retract=stripes.REACH):
