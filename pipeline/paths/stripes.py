@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from pipeline.geometry import signed_areas_2d, unique_edges
+from pipeline.geometry import hat_gradients, signed_areas_2d, unique_edges
 from pipeline.paths.ends import REACH
 
 
@@ -85,18 +85,12 @@ def drawn_spacing(xy, faces, u, ok):
     corner, :func:`corner_phases`) draws in the triangles ``ok`` ((m,) bool), as the
     material sees it: their area over the length of path in them (path length per area
     is the index's gradient). None where no triangle holds paths."""
-    P = np.asarray(xy, dtype=float)[faces[ok]]
-    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    du1, du2 = u[ok][:, 1] - u[ok][:, 0], u[ok][:, 2] - u[ok][:, 0]
-    keep = np.abs(det) > 1e-12
-    if not keep.any():
+    gphi, area = hat_gradients(np.asarray(xy, dtype=float), faces[ok])
+    grad = np.hypot(*np.einsum("mi,mid->md", u[ok], gphi).T)
+    area = np.abs(area)
+    if not (area * grad).sum() > 0:
         return None
-    e1, e2, det, du1, du2 = e1[keep], e2[keep], det[keep], du1[keep], du2[keep]
-    # grad u solves [e1; e2] g = [du1, du2] (Cramer's rule, all triangles at once).
-    gx = (du1 * e2[:, 1] - du2 * e1[:, 1]) / det
-    gy = (e1[:, 0] * du2 - e2[:, 0] * du1) / det
-    return float(np.abs(det).sum() / (np.abs(det) * np.hypot(gx, gy)).sum())
+    return float(area.sum() / (area * grad).sum())
 
 
 def stripe_matrix(xy, faces, X, width_mm):
