@@ -51,10 +51,10 @@ def isoline_would(hf, profile):
     try:
         mesh = build_mesh(hf, isoline_step_mm=mp.isoline_step_mm,
                           gradient_spacing_mm=mp.gradient_spacing_mm, l_u_mm=mp.l_u_mm)
+        flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
+                       weights=fp.weights())
     except PipelineError as err:
         return {**out, "would_form": False, "error": err.code, "error_message": str(err)}
-    flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
-                   weights=fp.weights())
     fold = fold_area_fraction(flat.xy, mesh.faces)
     would = fold <= FOLD_LIMIT and flat.invalid_area_fraction <= profile.printable.max_invalid_area
     return {**out, "invalid_area_fraction": float(flat.invalid_area_fraction),
@@ -66,7 +66,7 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
     """The least smoothing at which the simulated free sheet ends within the profile's
     displacement limit: the report's ``hold`` section (``smooth_mm``, None where none up
     to the cap holds; ``tried``: [smooth_mm, displacement share, relief scale, relief mm]
-    per look).
+    per look; ``failed``: [smooth_mm, error code] where a look could not plan it).
 
     A thin sheet cannot bend into features much narrower than it is stiff (the real
     tiles' ridges, a few mm across, come out as one smooth hill); smoothed, the same
@@ -81,9 +81,18 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
     size = max(validated.z.shape) * validated.pixel_mm
     # A small field on the quick grid would be a few cells across: there the plan's own.
     grid = float(np.clip(size / 50.0, profile.mesh.grid_mm, QUICK_GRID_MM))
-    tried = []
+    tried, failed = [], []
 
     def holds(smooth):
+        # A look is advice: an input it cannot plan (smoothed away, say) does not hold,
+        # and the plan itself stands.
+        try:
+            return look(smooth)
+        except PipelineError as err:
+            failed.append([float(smooth), err.code])
+            return False
+
+    def look(smooth):
         hf = simplify(validated, opts["min_prominence_mm"], smooth)[0]
         scale = 1.0
         if fit_height_too:
@@ -103,4 +112,4 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
     cap = HOLD_CAP * size
     found = least_smoothing(holds, opts["smooth_mm"], cap_mm=cap)
     return {"smooth_mm": found, "limit": limit, "grid_mm": grid, "cap_mm": round(cap, 2),
-            "tried": tried, "seconds": round(time.perf_counter() - t0, 2)}
+            "tried": tried, "failed": failed, "seconds": round(time.perf_counter() - t0, 2)}

@@ -51,3 +51,20 @@ def test_a_sheet_no_smoothing_holds_says_so(tmp_path):
 def test_a_sheet_that_holds_is_not_looked_at(tmp_path):
     r = plan_file(_ridged(tmp_path, "smooth_mm: 5\n"), load_profile("generic-0.5mm")).report
     assert r["printable"] and "hold" not in r and "other_method" not in r
+
+
+def test_a_look_that_cannot_plan_leaves_the_plan_standing(tmp_path, monkeypatch):
+    from pipeline import alternatives
+    from pipeline.errors import MeshingError
+
+    def fails(*args, **kwargs):
+        raise MeshingError("nothing left to mesh", code="mesh.empty")
+
+    monkeypatch.setattr(alternatives, "build_grid_mesh", fails)
+    monkeypatch.setattr(alternatives, "flatten", fails)
+    r = plan_file(_ridged(tmp_path), load_profile("generic-0.5mm")).report
+    assert "printable.displacement" in r["gate"]["outside"]
+    assert r["hold"]["smooth_mm"] is None and r["hold"]["tried"] == []
+    assert r["hold"]["failed"] and all(code == "mesh.empty" for _, code in r["hold"]["failed"])
+    assert r["other_method"]["error"] == "mesh.empty"
+    assert "plan.hold" not in [w["code"] for w in r["warnings"]]
