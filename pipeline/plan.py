@@ -144,22 +144,25 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
     if not result.printable:
-        _alternatives(result, given, profile, opts, section, path.stem)
+        _alternatives(result, given, profile, opts, section, path.stem, say)
     result.report.update(gate=section, printable=result.printable,
                          needs_decision=result.needs_decision, warnings=list(result.problems))
     return result
 
 
-def _alternatives(result, given, profile, opts, section, name):
+def _alternatives(result, given, profile, opts, section, name, say):
     """What would print a plan the gate turned down: the other layout method, and for a
     free sheet that ends too far from the shape, the smoothing at which it holds."""
     free = profile.flatten.method == "free"
+    say("other_method", "not printable: would the %s method form it?"
+        % ("paper's (isoline)" if free else "free"))
     t = time.perf_counter()
     would = alternatives.isoline_would if free else alternatives.free_would
     result.report["other_method"] = would(given, profile)
     result.report["timing_s"]["other_method"] = round(time.perf_counter() - t, 4)
     result.problems += other_method_problems(result.report["other_method"], name)
     if free and "printable.displacement" in section["outside"] and not result.blocked:
+        say("hold", "the sheet ends too far from the shape: at which smoothing would it hold?")
         t = time.perf_counter()
         result.report["hold"] = alternatives.smoothing_that_holds(
             result.validated, profile, opts, result.report["heightfield"]["longest_diameter_mm"],

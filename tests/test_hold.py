@@ -22,8 +22,10 @@ def _ridged(tmp_path, extra=""):
 
 def test_a_sheet_that_does_not_hold_is_offered_the_smoothing_that_does(tmp_path):
     prof = load_profile("generic-0.5mm")
-    r = plan_file(_ridged(tmp_path), prof).report
+    stages = []
+    r = plan_file(_ridged(tmp_path), prof, progress=lambda s, m: stages.append(s)).report
     assert "printable.displacement" in r["gate"]["outside"]
+    assert stages[-2:] == ["other_method", "hold"]     # the status page says what runs
     hold = r["hold"]
     assert hold["smooth_mm"] is not None and hold["smooth_mm"] > 1.0
     assert all(t[1] > prof.printable.max_mean_displacement
