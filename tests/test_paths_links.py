@@ -137,3 +137,20 @@ def test_a_short_join_in_the_wrong_place_does_not_break_a_serpentine():
     assert {tuple(j) for j in joins.tolist()} == {(1, 3), (5, 7)}
     merged, hops = merge_joined(chains, joins)
     assert len(merged) == 2 and len(hops) == 2
+
+
+def test_two_short_joins_in_the_wrong_places_do_not_break_a_serpentine():
+    # Six paths a width apart; the four middle right ends lie flush, the outer two 0.3 mm
+    # out. Shortest first joins 1-2 and 3-4 and strands the outer ends; only moving both
+    # joins at once (0-1, 2-3, 4-5: a path of three hops through two joins) strands none.
+    sheet = shapely.box(-20, -1, 11, 3.5)
+    shapely.prepare(sheet)
+    chains = []
+    for k, x1 in enumerate((10.3, 10.0, 10.0, 10.0, 10.0, 10.3)):
+        p = np.c_[np.linspace(-3 * k, x1, 21), np.full(21, 0.5 * k)]
+        chains.append((p, np.full(20, 0.2), False))
+    samples, label, tree = path_samples([p for p, _, _ in chains], PW)
+    joins = join_ends(chains, PW, 4 * PW, sheet, samples, label, tree)
+    assert {tuple(j) for j in joins.tolist()} == {(1, 3), (5, 7), (9, 11)}
+    merged, _ = merge_joined(chains, joins)
+    assert len(merged) == 3
