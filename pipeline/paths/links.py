@@ -94,11 +94,19 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     # A turn costs two widths: across a gap, running straight on beats a U-turn.
     cost = np.linalg.norm(b - a, axis=1) + 2 * pw * _turn(chains, ea, eb, a, b)
 
+    known = np.full(len(a), np.nan)
+
     def extra(k):
-        """Over-print cost of hops ``k``, inf where the hop may not be taken."""
-        over = over_others(a[k], b[k], ea[k] // 2, eb[k] // 2, samples, label, tree, pw)
-        inside = shapely.contains(footprint, shapely.linestrings(np.stack([a[k], b[k]], axis=1)))
-        return np.where((over <= over_mm) & inside, 4 * over, np.inf)
+        """Over-print cost of hops ``k``, inf where the hop may not be taken; each hop is
+        measured once, whether the greedy matching or the augmenting paths ask first."""
+        todo = k[np.isnan(known[k])]
+        if len(todo):
+            over = over_others(a[todo], b[todo], ea[todo] // 2, eb[todo] // 2, samples, label,
+                               tree, pw)
+            inside = shapely.contains(footprint, shapely.linestrings(
+                np.stack([a[todo], b[todo]], axis=1)))
+            known[todo] = np.where((over <= over_mm) & inside, 4 * over, np.inf)
+        return known[k]
 
     joins = _greedy(ea, eb, cost, len(chains), extra)
     return _augment(joins, ea, eb, cost, len(chains), extra)
