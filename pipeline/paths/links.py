@@ -236,7 +236,7 @@ def _alternating_path(a, adj, partner, depth):
         nxt = []
         for u in frontier:
             for v in adj.get(u, ()):
-                if v in back or v // 2 == u // 2:
+                if v in back:
                     continue
                 w = partner.get(v)
                 if w is None:
