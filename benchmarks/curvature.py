@@ -5,7 +5,8 @@ The metric (each triangle's shrink along its print direction) is the plan's; onl
 rest dihedral angles change:
 
 - ``none``: bending toward flat;
-- ``plan``: the plan's bilayer program (curvature along ``d``, within the shrink range);
+- ``plan``: the plan's program (curvature along ``d`` within the shrink range, and the twist
+  of its layer groups turned apart, which also shrink by their own mean);
 - ``along_d``: the target's curvature along ``d`` from the 1 mm smoothed field, no limit;
 - ``full_tensor``: the target's whole curvature (1 mm smoothed field) in the layout frame,
   which paths that shrink only along themselves cannot program;
@@ -48,7 +49,8 @@ def study(path):
     from pipeline.plan import plan_file
     from pipeline.simulation.programmed import BATH_BUMP
     from pipeline.profiles.profile import load_profile
-    from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
+    from pipeline.simulation.shell import (directional_rest, simulate_shell, tensor_rest,
+                                          thickness_for)
     prof = load_profile("generic-0.5mm")
     lim = prof.shrink_limits
     p = plan_file(path, prof, method="free", force_fit=path.suffix == ".png")
@@ -58,20 +60,24 @@ def study(path):
     thick = thickness_for(sigma, prof.shrink_curve, prof.layers, prof.thickness_mm.min,
                           prof.thickness_mm.max)
     top = topology(mesh.faces, len(mesh.vertices))
-    K = curvature.target_tensor(p.hf, mesh, flat, sigma)
+    K = curvature.target_tensor(p.hf, mesh, flat, sigma, smooth_mm=1.0)
     d = flat.direction
+    shrink = sigma[:, None, None] * np.einsum("mi,mj->mij", d, d)
     along = np.einsum("mi,mij,mj->m", d, K, d)[:, None, None] * np.einsum("mi,mj->mij", d, d)
+    A, B = p.curvature.group_tensors(d, sigma)
     variants = {
         "none": None, "plan": p.curvature.theta_rest,
-        "along_d": curvature.rest_angles(flat.xy, mesh.faces, d, sigma, along, top),
-        "full_tensor": curvature.rest_angles(flat.xy, mesh.faces, d, sigma, K, top),
+        "along_d": curvature.rest_angles(flat.xy, mesh.faces, shrink, along, top),
+        "full_tensor": curvature.rest_angles(flat.xy, mesh.faces, shrink, K, top),
         "target_angles": dihedral(mesh.vertices, top.hinges)}
     diameter = p.report["heightfield"]["longest_diameter_mm"]
     out = {"input": path.name, "fit_scale": (p.fit.applied_scale if p.fit else None),
            "longest_diameter_mm": diameter, "triangles": len(mesh.faces)}
     for name, theta in variants.items():
         t = time.perf_counter()
-        sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick, theta_rest=theta,
+        # The plan's layer groups, turned apart, shrink by their mean.
+        own = tensor_rest(flat.xy, mesh.faces, (A + B) / 2) if name == "plan" else rest
+        sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, own, thick, theta_rest=theta,
                              pop=BATH_BUMP)
         out[name] = {"mean_displacement_pct": round(100 * sim.mean_displacement_mm / diameter, 3),
                      "iterations": sim.iterations, "converged": sim.converged,

@@ -75,11 +75,13 @@ def write_outputs(st, plan):
     out = output_names(name, color=plan.hf.color is not None)
     lim = prof.shrink_limits
     timing = plan.report["timing_s"]
-    tp = plan.toolpaths
+    tp, up = plan.toolpaths, getattr(plan, "upper_toolpaths", None)
     t = time.perf_counter()
     try:
-        stats = gcode.write_gcode(tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name,
-                                  center=False, deltas=_segment_deltas(plan))
+        stats = gcode.write_gcode(
+            tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name, center=False,
+            deltas=_segment_deltas(plan, tp.traces),
+            upper=(up.traces, up.sigma, _segment_deltas(plan, up.traces)) if up else None)
     except PlanError as e:
         raise _blocked_first(plan, e) from e
     if plan.blocked:
@@ -177,8 +179,8 @@ def _fit_note(plan):
                                                               fit.max_height_mm)
 
 
-def _segment_deltas(plan):
-    """The bilayer of each tool-path segment (the program of the triangle it crosses,
+def _segment_deltas(plan, traces):
+    """The bilayer of each segment of ``traces`` (the program of the triangle it crosses,
     found by its midpoint's nearest triangle centre), or None without a program."""
     prog = getattr(plan, "curvature", None)
     if prog is None:
@@ -187,7 +189,7 @@ def _segment_deltas(plan):
     centres = plan.xy_bed[plan.mesh.faces].mean(axis=1)
     tree = cKDTree(centres)
     out = []
-    for p in plan.toolpaths.traces:
+    for p in traces:
         p = np.asarray(p, dtype=float)
         _, f = tree.query((p[1:] + p[:-1]) / 2)
         out.append(prog.delta_sigma[f])

@@ -52,6 +52,7 @@ class Plan:
     sim: object = None
     xy_bed: object = None
     toolpaths: object = None
+    upper_toolpaths: object = None
     simplified: dict = field(default_factory=dict)
     curvature: object = None
     fit: object = None
@@ -319,9 +320,15 @@ def _free_sheet(result, hf, profile, stage, timing):
     result.xy_bed = _on_bed(flat.xy, profile)
     tp = profile.toolpath
     sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
-    result.toolpaths = stripe_toolpaths(result.xy_bed, mesh.faces, flat.direction, sigma,
-                                        profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
-                                        merge_sigma=tp.merge_sigma, level=mesh.vertex_level)
+    # Crossed layer groups print their own stripes; the lower group's are the plan's
+    # paths (pictures, screen print), the upper group's are printed above them.
+    groups = [stripe_toolpaths(result.xy_bed, mesh.faces, d, sigma, profile.path_width_mm,
+                               merge_angle_deg=tp.merge_angle_deg, merge_sigma=tp.merge_sigma,
+                               level=mesh.vertex_level)
+              for d in result.curvature.group_directions(flat.direction)[
+                  :2 if result.curvature.crossed else 1]]
+    result.toolpaths = groups[0]
+    result.upper_toolpaths = groups[1] if len(groups) > 1 else None
     timing["toolpath"] = time.perf_counter() - t
 
 
@@ -381,7 +388,8 @@ def _report(path, profile, p, vrep, srep, timing):
         "simulation": dict(sim.report(), mean_displacement_fraction=float(
             sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
             **({"inverted": inverted.report(p.inverted)} if p.inverted else {})),
-        "toolpath": _json_ready(p.toolpaths.info),
+        "toolpath": _json_ready(dict(p.toolpaths.info, **(
+            {"upper": p.upper_toolpaths.info} if p.upper_toolpaths is not None else {}))),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         **({"curvature": dict(p.curvature.report(), bilayer_c=profile.curvature.bilayer_c,
                               bilayer_c_status=profile.curvature.status)}

@@ -19,7 +19,7 @@ from pipeline.layout import curvature
 from pipeline.layout.free import flatten_free
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.profiles.profile import load_profile
-from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
+from pipeline.simulation.shell import simulate_shell, tensor_rest, thickness_for
 from pipeline.geometry import Mesh, edge_index, signed_areas_2d, unique_edges
 
 
@@ -320,20 +320,26 @@ def sheet_thickness(sigma):
                          SHEET_PROFILE.thickness_mm.min, SHEET_PROFILE.thickness_mm.max)
 
 
-def free_sheet(hf, spacing_mm, programmed=True):
+def free_sheet(hf, spacing_mm, programmed=True, turn_max_deg=None):
     """The free method's sheet on a ``spacing_mm`` grid as the plan simulates it:
-    started flat, the curvature programmed through the layers (or not). SimResult."""
+    started flat, the curvature programmed through the layers (or not), its layer groups
+    turned apart up to ``turn_max_deg`` (default: the profile's). SimResult."""
     mesh = build_grid_mesh(hf, spacing_mm)
     flat = flatten_free(mesh, LIMITS.s_min, LIMITS.s_max, iterations=200)
     sigma = np.clip(flat.sigma, LIMITS.s_min, LIMITS.s_max)
     thick = sheet_thickness(sigma)
+    shrink = sigma[:, None, None] * np.einsum("mi,mj->mij", flat.direction, flat.direction)
     theta = None
     if programmed:
-        theta = curvature.program(curvature.along_print_direction(hf, mesh, flat), mesh.faces,
-                                  flat.xy, flat.direction, sigma, thick, LIMITS.s_min,
-                                  LIMITS.s_max).theta_rest
+        prog = curvature.program(curvature.target_tensor(hf, mesh, flat, sigma), mesh.faces,
+                                 flat.xy, flat.direction, sigma, thick, LIMITS.s_min,
+                                 LIMITS.s_max, turn_max_deg=(
+                                     SHEET_PROFILE.curvature.turn_max_deg
+                                     if turn_max_deg is None else turn_max_deg))
+        A, B = prog.group_tensors(flat.direction, sigma)
+        theta, shrink = prog.theta_rest, (A + B) / 2
     return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
-                          directional_rest(flat.xy, mesh.faces, flat.direction, sigma), thick,
+                          tensor_rest(flat.xy, mesh.faces, shrink), thick,
                           theta_rest=theta, pop=0.0)
 
 

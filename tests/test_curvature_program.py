@@ -1,4 +1,5 @@
-"""The bilayer curvature program: the target's normal curvature, within the shrink range."""
+"""The curvature program: the target's normal curvature along the paths as a bilayer, within
+the shrink range, and its twist as two layer groups turned apart."""
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ from pipeline.layout import curvature
 from pipeline.mechanics.pd import minimize_lbfgs
 from pipeline.mechanics.shell import ShellSystem
 from pipeline.profiles.profile import load_profile
-from pipeline.simulation.shell import directional_rest
+from pipeline.simulation.shell import directional_rest, tensor_rest
 
 from meshes import flat_sheet, free_sheet, roll_curvature
 
@@ -39,12 +40,18 @@ def test_a_bowl_is_negative_and_a_saddle_has_both_signs():
     assert k[0] == pytest.approx(-0.01, rel=0.02) and k[1] == pytest.approx(0.01, rel=0.02)
 
 
+def along(kappa, d):
+    """A curvature tensor ``kappa d d^T`` per triangle: (m, 2, 2)."""
+    d = np.asarray(d, dtype=float)
+    return np.asarray(kappa, dtype=float).reshape(-1, 1, 1) * np.einsum("mi,mj->mij", d, d)
+
+
 def test_program_stays_within_the_shrink_range_and_says_where_it_was_cut():
     xy = np.array([[0, 0], [10, 0], [0, 10], [10, 10.0]])
     faces = np.array([[0, 1, 2], [1, 3, 2]])
     d = np.array([[1.0, 0.0], [1.0, 0.0]])
     sigma = np.array([0.20, 0.33])           # room: 2 * min(0.2 - 0.0, 0.34 - 0.2) = 0.28; 0.02
-    prog = curvature.program([0.05, 0.05], faces, xy, d, sigma, [1.5, 1.5], 0.0, 0.34)
+    prog = curvature.program(along(0.05, d), faces, xy, d, sigma, [1.5, 1.5], 0.0, 0.34)
     k_max = 1.5 * np.array([0.28, 0.02]) / 1.5
     assert prog.kappa[0] == pytest.approx(0.05) and not prog.limited[0]
     assert prog.kappa[1] == pytest.approx(k_max[1]) and prog.limited[1]
@@ -53,10 +60,60 @@ def test_program_stays_within_the_shrink_range_and_says_where_it_was_cut():
     # fold. Bent across the diagonal, the diagonal folds by both triangles' curvature.
     assert prog.theta_rest.shape == (1,) and prog.theta_rest[0] == pytest.approx(0.0, abs=1e-12)
     across = np.tile([np.sqrt(0.5), np.sqrt(0.5)], (2, 1))
-    prog = curvature.program([0.01, 0.01], faces, xy, across, [0.1, 0.1], [1.5, 1.5], 0.0, 0.34)
+    prog = curvature.program(along(0.01, across), faces, xy, across, [0.1, 0.1], [1.5, 1.5],
+                             0.0, 0.34)
     # On the shrunk sheet each far corner sits s = 0.9 * 5 sqrt(2) from the diagonal and
     # rises kappa s^2 / 2: each triangle turns by kappa s / 2.
     assert prog.theta_rest[0] == pytest.approx(0.01 * 0.9 * 5 * np.sqrt(2))
+
+
+def test_the_layer_groups_turn_apart_by_the_twist_and_keep_the_metric_unsheared():
+    """Each group turns so that their difference is the twist while the mean gains no
+    shear; a group never turns past the limit, and with no limit both print along d."""
+    twist = np.array([0.004, -0.01, 0.2, 0.01])
+    s_b, s_t = np.array([0.2, 0.3, 0.2, 0.0]), np.array([0.1, 0.3, 0.2, 0.1])
+    a, b = curvature.crossing(twist, s_b, s_t, 20.0)
+    # A group of shrink s turned by a off d shrinks s sin(2a) / 2 in the (d, e) shear.
+    shear_b, shear_t = s_b * np.sin(2 * a) / 2, s_t * np.sin(2 * b) / 2
+    cut = 0.2 * np.sin(np.radians(40.0))               # the third turns 20 degrees each way
+    assert np.allclose(shear_b - shear_t, [0.004, -0.01, cut, 0.0])
+    assert np.allclose(shear_b + shear_t, 0.0)
+    assert np.degrees(np.abs([a, b])).max() <= 20.0 + 1e-9
+    assert a[3] == 0 and b[3] == 0                 # a group that does not shrink cannot twist
+    assert not np.any(curvature.crossing(twist, s_b, s_t, 0.0))
+
+
+@pytest.mark.parametrize("turn_max_deg", [20.0, 0.0])
+def test_a_strip_printed_with_its_layer_groups_turned_apart_rolls_as_the_laminate_says(
+        turn_max_deg):
+    """Paths at 45 degrees to a strip, the lower group turned one way and the upper the
+    other: a twist in the paths' frame is a roll along the strip, ``c * twist / h``;
+    with the groups not allowed to turn the strip stays flat."""
+    profile = load_profile("generic-0.5mm")
+    lim = profile.shrink_limits
+    h, sigma0 = 1.8, 0.2
+    V, faces = flat_sheet(nx=25, ny=5, size=(40.0, 6.0), jitter=0.2, seed=1)
+    xy = V[:, :2]
+    m = len(faces)
+    d = np.tile([np.sqrt(0.5), np.sqrt(0.5)], (m, 1))
+    e = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    tau = 0.01                                             # 1/mm, the target's d^T K e
+    K = tau * (np.einsum("mi,mj->mij", d, e) + np.einsum("mi,mj->mij", e, d))
+    sigma = np.full(m, sigma0)
+    prog = curvature.program(K, faces, xy, d, sigma, np.full(m, h), lim.s_min, lim.s_max,
+                             turn_max_deg=turn_max_deg)
+    assert prog.crossed == (turn_max_deg > 0) and not np.any(prog.delta_sigma)
+    A, B = prog.group_tensors(d, sigma)
+    S = ShellSystem(faces, len(V), tensor_rest(xy, faces, (A + B) / 2), h,
+                    theta_rest=prog.theta_rest)
+    X = V.T.copy()
+    X[2] += 1e-3 * np.sin(V[:, 0])
+    X, _, _, converged = minimize_lbfgs(S, X, 2000, 1e-7)
+    assert converged
+    if turn_max_deg:
+        assert roll_curvature(X.T) == pytest.approx(tau, rel=0.05)
+    else:
+        assert np.ptp(X[2]) < 1e-3
 
 
 def test_the_isoline_direction_runs_across_the_height_gradient():
@@ -79,7 +136,7 @@ def test_a_strip_printed_with_a_thickness_difference_bends_as_the_bilayer_formul
     xy = V[:, :2]
     d = np.tile([1.0, 0.0], (len(faces), 1))
     sigma = np.full(len(faces), 0.5 * (s_bottom + s_top))
-    prog = curvature.program(np.full(len(faces), kappa), faces, xy, d, sigma,
+    prog = curvature.program(along(kappa, d), faces, xy, d, sigma,
                              np.full(len(faces), h), lim.s_min, lim.s_max)
     assert not prog.limited.any()
     S = ShellSystem(faces, len(V), directional_rest(xy, faces, d, sigma), h,
@@ -128,8 +185,9 @@ def test_the_full_curvature_in_the_layout_frame_gives_the_targets_dihedral_angle
     sigma = np.clip(flat.sigma, LIMITS.s_min, LIMITS.s_max)
     top = topology(mesh.faces, len(mesh.vertices))
     target = dihedral(mesh.vertices, top.hinges)
-    K = curvature.target_tensor(hf, mesh, flat, sigma)
+    K = curvature.target_tensor(hf, mesh, flat, sigma, smooth_mm=1.0)
     d = flat.direction
+    shrink = sigma[:, None, None] * np.einsum("mi,mj->mij", d, d)
     along = np.einsum("mi,mij,mj->m", d, K, d)[:, None, None] * np.einsum("mi,mj->mij", d, d)
     mid = mesh.vertices[top.hinges[:, :2]].mean(axis=1)[:, :2]
     r = np.linalg.norm(mid - mid.mean(axis=0), axis=1)
@@ -139,9 +197,9 @@ def test_the_full_curvature_in_the_layout_frame_gives_the_targets_dihedral_angle
         t, s = theta[inner], target[inner]
         return np.corrcoef(t, s)[0, 1], t @ s / (s @ s)
 
-    corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, d, sigma, K, top))
+    corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, shrink, K, top))
     assert corr > 0.99 and slope == pytest.approx(1.0, abs=0.05), (corr, slope)
-    corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, d, sigma, along, top))
+    corr, slope = fit(curvature.rest_angles(flat.xy, mesh.faces, shrink, along, top))
     assert corr < 0.6 and slope < 0.5, (corr, slope)
 
 
@@ -168,3 +226,29 @@ def test_free_directions_turn_the_way_the_target_bends_most():
     across = np.degrees(np.arccos(np.abs(bent.direction[crest, 0])))
     assert np.percentile(across, 90) < 10.0
     assert np.allclose(bent.xy, flat.xy) and np.allclose(bent.sigma, flat.sigma)
+
+
+def test_turning_the_layer_groups_apart_brings_the_elongated_peak_within_one_percent():
+    """The elongated peak twists along its flanks: printed along ``d`` alone its sheet
+    rests more than 1 % of its length (160 mm) off; with the layer groups turned apart
+    by the twist it rests within 1 %, a fifth closer."""
+    import dataclasses
+    from pipeline.layout.free import FREE_BELOW, flatten_free
+    from pipeline.meshing.grid import build_grid_mesh
+    from pipeline.simulation.programmed import simulate_free
+    profile = load_profile("generic-0.5mm")
+    hf = shapes.elongated_peak()
+    mesh = build_grid_mesh(hf, profile.mesh.grid_mm)
+    lim = profile.shrink_limits
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=profile.flatten.free_iterations)
+    flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+    rest = {}
+    for turn in (profile.curvature.turn_max_deg, 0.0):
+        p = dataclasses.replace(profile, curvature=dataclasses.replace(profile.curvature,
+                                                                       turn_max_deg=turn))
+        prog, sim = simulate_free(hf, mesh, flat, p)
+        assert prog.crossed == (turn > 0)
+        rest[turn] = sim.mean_displacement_mm
+    twisted, plain = rest[profile.curvature.turn_max_deg], rest[0.0]
+    assert plain > 0.01 * 160.0 and twisted < 0.01 * 160.0, rest
+    assert twisted < 0.8 * plain, rest

@@ -81,3 +81,37 @@ def test_a_bilayer_prints_its_lower_layers_at_the_larger_shrink():
     theta_hi = PROFILE.shrink_curve.theta(np.array([0.16]))[0][0]
     assert lower[0] == pytest.approx(theta_lo, abs=1e-3)
     assert upper[0] == pytest.approx(theta_hi, abs=1e-3)
+
+
+def test_crossed_layer_groups_print_their_own_paths_each_on_the_layers_below():
+    """The lower half of the layers prints the lower group's paths (along x), the upper
+    half the upper group's (along y); every upper move sits on the lower layers'
+    thickness at its own point plus its own, and the file counts both groups."""
+    from pipeline.gcode.writer import write_gcode
+    xs = np.linspace(0, 20, 21)
+    lower = [np.c_[xs, np.full(21, y)] for y in (0.0, 10.0, 20.0)]
+    upper = [np.c_[np.full(21, x), xs] for x in (0.0, 10.0, 20.0, 5.0)]
+    sig = lambda traces, s: [np.full(len(t) - 1, s) for t in traces]  # noqa: E731
+    buf = io.StringIO()
+    stats = write_gcode(lower, sig(lower, 0.2), PROFILE, buf, deltas=sig(lower, 0.08),
+                        upper=(upper, sig(upper, 0.2), sig(upper, 0.08)))
+    parsed = parse(buf.getvalue())
+    half = PROFILE.layers // 2
+    theta_lo = PROFILE.shrink_curve.theta(np.array([0.24]))[0][0]
+    theta_hi = PROFILE.shrink_curve.theta(np.array([0.16]))[0][0]
+    for layer in range(1, PROFILE.layers + 1):
+        moves = [m for m in parsed.layer_moves(layer) if m.extruding]
+        along_x = all(m.start[1] == pytest.approx(m.end[1]) for m in moves)
+        along_y = all(m.start[0] == pytest.approx(m.end[0]) for m in moves)
+        assert (along_x, along_y) == ((True, False) if layer <= half else (False, True)), layer
+        want = (theta_lo * min(layer, half) + theta_hi * max(layer - half, 0))
+        zs = np.array([m.end[2] for m in moves])
+        assert np.ptp(zs) == 0 and zs[0] == pytest.approx(want, abs=0.001 * layer), layer
+    assert stats["traces"] == 3 and stats["upper_traces"] == 4
+    assert stats["travel_moves"] == 3 * half + 4 * (PROFILE.layers - half)
+    assert stats["extrusion_moves"] == len([m for m in parsed.moves
+                                            if m.extruding and m.layer is not None])
+    # Filament: each group's own length times its own layers' thickness.
+    area = PROFILE.filament_mm ** 2 * np.pi / 4
+    want = (3 * 20 * theta_lo * half + 4 * 20 * theta_hi * half) * PROFILE.path_width_mm / area
+    assert stats["filament_mm"] == pytest.approx(want, rel=1e-3)

@@ -43,6 +43,26 @@ def test_the_free_method_plans_a_saddle_end_to_end(saddle_plan):
         assert (out / ("saddle.%s.png" % name)).exists()
 
 
+def test_a_twisted_sheet_prints_its_upper_layers_on_paths_of_their_own(saddle_plan):
+    """A saddle twists: the layer groups turn apart, each gets stripes along its own
+    direction, and the G-code prints the upper group's paths on the upper layers."""
+    from gcode_parser import parse
+    plan, out = saddle_plan
+    r = plan.report
+    assert plan.curvature.crossed and r["curvature"]["crossing_deg"]["p95"] > 0.5
+    d_b, d_t = plan.curvature.group_directions(plan.flat.direction)
+    assert np.allclose(np.linalg.norm(d_t, axis=1), 1.0) and not np.allclose(d_b, d_t)
+    up = r["toolpath"]["upper"]
+    assert up["coverage"] > 0.9 and up["direction_angle_deg"]["p95"] < 10.0
+    assert r["gcode"]["upper_traces"] == len(plan.upper_toolpaths.traces)
+    parsed = parse((out / "saddle.gcode").read_text())
+    starts = {layer: [m.start[:2] for m in parsed.layer_moves(layer) if m.extruding][:50]
+              for layer in (1, plan.profile.layers)}
+    bed = np.asarray(plan.upper_toolpaths.traces[0][0]) + 0.0
+    assert starts[1] != starts[plan.profile.layers]
+    assert np.allclose(starts[plan.profile.layers][0], bed, atol=0.01)
+
+
 def test_the_isoline_method_says_so(tmp_path):
     hf = shapes.dome(diameter_mm=30.0, height_mm=6.0)
     np.save(tmp_path / "d.npy", hf.z)

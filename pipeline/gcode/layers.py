@@ -19,21 +19,23 @@ class MoveText:
     """One layer's move strings, shared by every layer of a thickness group.
 
     base : (m,) object, str: ``G1 X.. Y..`` of each move (every layer);
-    tails : K (m,) object arrays, `` I.. J.. E..`` of each move for each of the K
-    thickness columns of ``mv["th"]``; trace_ends : (t,) int, one past each trace's
-    last move; e_trace_end : K (t,) int, E at each trace's end in 1e-5 mm;
-    filament_mm : all layers' filament, mm.
+    tails : column -> (m,) object array, `` I.. J.. E..`` of each move for each
+    thickness column of ``mv["th"]`` its layers print; trace_ends : (t,) int, one past
+    each trace's last move; e_trace_end : column -> (t,) int, E at each trace's end in
+    1e-5 mm; filament_mm : its layers' filament, mm.
     """
 
     base: np.ndarray
-    tails: list
+    tails: dict
     trace_ends: np.ndarray
-    e_trace_end: list
+    e_trace_end: dict
     filament_mm: float
 
 
-def text_of_moves(mv, settings):
-    """:class:`MoveText` of one layer's moves ``mv`` (see :mod:`pipeline.gcode.arcs`)."""
+def text_of_moves(mv, settings, layers=None):
+    """:class:`MoveText` of one layer's moves ``mv`` (see :mod:`pipeline.gcode.arcs`),
+    for the layers ``(first, last)`` (1-based, inclusive; default all) that print them."""
+    first, last = layers or (1, settings.layers)
     n_moves = len(mv["len"])
     trace_ends = np.concatenate([mv["first"][1:], [n_moves]])
     prev = np.empty_like(mv["end"])
@@ -52,9 +54,10 @@ def text_of_moves(mv, settings):
         i_s[mv["ij"][:, 0] == 0] = ""
         j_s[mv["ij"][:, 1] == 0] = ""
         ij[is_arc] = (i_s + j_s)[is_arc]
-    tails, e_ends, filament = [], [], 0.0
+    tails, e_ends, filament = {}, {}, 0.0
     k = mv["th"].shape[1]
-    for col in range(k):
+    cols = [0] if k == 1 else range(first - 1, last)
+    for col in cols:
         e_mm = (mv["len"] * (mv["th"][:, col] / 1000.0) * settings.path_width_mm
                 / settings.filament_area_mm2)
         e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
@@ -62,11 +65,28 @@ def text_of_moves(mv, settings):
             e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
         else:
             e_strings = format_fixed(e_cum, 5, " E")
-        tails.append(ij + e_strings)
-        e_ends.append(e_cum[trace_ends - 1])
-        filament += e_cum[-1] / 1e5 * (settings.layers if k == 1 else 1)
+        tails[col] = ij + e_strings
+        e_ends[col] = e_cum[trace_ends - 1]
+        filament += e_cum[-1] / 1e5 * (last - first + 1 if k == 1 else 1)
     return MoveText(base=code + xs + ys, tails=tails, trace_ends=trace_ends,
                     e_trace_end=e_ends, filament_mm=filament)
+
+
+@dataclass
+class Group:
+    """Moves printed by the layers ``first..last`` (1-based, inclusive): crossed layer
+    groups print their own paths. mv : one layer's moves; text : :class:`MoveText`;
+    labels : one comment per trace, or None."""
+
+    mv: dict
+    text: MoveText
+    first: int
+    last: int
+    labels: list = None
+
+    @property
+    def layers(self):
+        return self.last - self.first + 1
 
 
 def layer_z_um(th_um, layer):
@@ -77,19 +97,21 @@ def layer_z_um(th_um, layer):
     return th_um[:, :layer].sum(axis=1)
 
 
-def emit(sink, header, mv, text, timing, settings, labels=None):
-    """Write the whole file to ``sink``: header, start G-code, every layer, end G-code."""
+def emit(sink, header, groups, timing, settings):
+    """Write the whole file to ``sink``: header, start G-code, every layer (each from the
+    :class:`Group` that prints it), end G-code."""
     sink.write("\n".join(header) + "\n")
     if settings.start_gcode:
         sink.write(settings.start_gcode.rstrip("\n") + "\n")
     sink.write("G90\n%s\n" % ("M83" if settings.relative_e else "M82"))
     travel = _Travel(settings, timing.z_speed_mm_s)
-    th = mv["th"]
     for layer in range(1, settings.layers + 1):
+        g = next(g for g in groups if g.first <= layer <= g.last)
+        th = g.mv["th"]
         col = min(layer, th.shape[1]) - 1
         top_mm = layer_z_um(th, layer).max() / 1000.0
         sink.write("\n".join(travel.layer_head(layer, top_mm, th[:, col].max() / 1000.0)) + "\n")
-        _emit_layer(sink, layer, mv, text, travel, labels)
+        _emit_layer(sink, layer, g.mv, g.text, travel, g.labels)
     if settings.end_gcode:
         sink.write(settings.end_gcode.rstrip("\n") + "\n")
     sink.write("; end of hostd job\n")

@@ -40,7 +40,7 @@ from pipeline.errors import PlanError
 from pipeline.gcode.arcs import moves_with_arcs
 from pipeline.gcode.chords import merge_chords
 from pipeline.gcode.link import feed_percent, link_moves_per_s
-from pipeline.gcode.layers import emit, text_of_moves
+from pipeline.gcode.layers import Group, emit, text_of_moves
 from pipeline.gcode.printtime import ACCELERATION_MM_S2, JUNCTION_DEVIATION_MM
 from pipeline.gcode.summary import estimate, header_lines, summary
 
@@ -231,7 +231,8 @@ def thickness_for_sigma(sigmas, settings):
     return np.clip(theta, lo, hi), clamped
 
 
-def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=None):
+def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=None,
+                upper=None):
     """Write thickness-varying G-code for tool-path traces (paper 6.4).
 
     Parameters
@@ -251,6 +252,10 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
         A bilayer per segment: the lower half of the layers shrinks by ``sigma +
         delta / 2``, the upper half by ``sigma - delta / 2`` (a middle layer by
         ``sigma``), so the sheet curls away from its lower side where delta > 0.
+    upper : (traces, sigmas, deltas), optional
+        Paths of their own for the upper half of the layers (crossed layer groups), with
+        the shrink and bilayer of the triangles they cross; ``traces`` then print the
+        lower half (and a middle layer).
 
     Returns
     -------
@@ -260,9 +265,21 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
     ``traces``, ``extrusion_moves``, ``moves_per_s`` (at print speed), ``link_baud``,
     ``link_moves_per_s`` (the lines per second the link carries for this file's mean
     line length), ``feed_percent`` (the feed at which the moves fit in 80 % of it), and
-    ``lines_without_arcs`` when arc fitting is on.
+    ``lines_without_arcs`` when arc fitting is on; ``upper_traces`` with ``upper``.
     """
     settings = GcodeSettings.from_profile(profile)
+    lower, clamped = _thickness_set(traces, sigmas, deltas, settings)
+    if upper is not None:
+        upper, clamped_up = _thickness_set(*upper, settings)
+        clamped += clamped_up
+    return write_thickness_gcode(lower[0], lower[1], settings, out, name=name, center=center,
+                                 arc_values=lower[2], arc_value_span=settings.merge_sigma,
+                                 clamped_segments=clamped, upper=upper)
+
+
+def _thickness_set(traces, sigmas, deltas, settings):
+    """One set of traces ready to write: ((traces, thicknesses, arc values), clamped
+    segments), chords merged and each segment's thickness from its shrink."""
     if len(traces) != len(sigmas):
         raise PlanError("%d traces but %d sigma arrays" % (len(traces), len(sigmas)),
                         code="gcode.bad_input", fix="give one sigma array per trace")
@@ -275,11 +292,7 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
         theta, clamped = thickness_for_sigma(flat, settings)
     else:
         theta, clamped = _bilayer_thickness(flat, per_seg[:, 1], settings)
-    thetas = np.split(theta, parts)
-    return write_thickness_gcode(traces, thetas, settings, out, name=name, center=center,
-                                 arc_values=np.split(flat, parts),
-                                 arc_value_span=settings.merge_sigma,
-                                 clamped_segments=int(clamped.sum()))
+    return (traces, np.split(theta, parts), np.split(flat, parts)), int(clamped.sum())
 
 
 def _per_segment(sigmas, deltas):
@@ -303,7 +316,7 @@ def _bilayer_thickness(sigma, delta, settings):
 
 def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=True,
                           labels=None, arc_values=None, arc_value_span=0.0,
-                          clamped_segments=0, header_extra=()):
+                          clamped_segments=0, header_extra=(), upper=None):
     """Write G-code for traces with a given layer thickness per segment.
 
     ``write_gcode`` without the shrink curve (calibration prints thicknesses
@@ -311,43 +324,57 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     (k - 1, layers) for a thickness per layer; each layer's Z is then the sum of
     the thicknesses below it. ``labels`` (one str per trace, or None) become ``;`` comment
     lines before each trace; ``arc_values`` (per segment, default the
-    thickness) may span at most ``arc_value_span`` inside one arc. See
-    :func:`write_gcode` for the other parameters and the returned stats.
+    thickness) may span at most ``arc_value_span`` inside one arc. ``upper``
+    (traces, thicknesses, arc values) prints the upper half of the layers on paths of its
+    own. See :func:`write_gcode` for the other parameters and the returned stats.
     """
     settings = GcodeSettings.from_profile(settings)
-    if len(traces) != len(thetas_mm):
-        raise PlanError("%d traces but %d thickness arrays" % (len(traces), len(thetas_mm)),
-                        code="gcode.bad_input", fix="give one thickness array per trace")
-    mv, q, starts, th_um, labels = _layer_moves(traces, thetas_mm, settings, center, labels,
-                                                arc_values, arc_value_span)
-    th_mm = th_um / 1000.0                                    # (segments, K)
-    text = text_of_moves(mv, settings)
-    timing = estimate(q, starts, mv, text, settings)
-    stats = summary(mv, q, starts, th_mm, text, timing, settings, clamped_segments)
-    header = header_lines(mv, th_mm, text, timing, settings, name, header_extra)
-    sink = _write(out, lambda sink: emit(sink, header, mv, text, timing, settings, labels))
+    sets = [(traces, thetas_mm, labels, arc_values)]
+    if upper is not None:
+        sets.append((upper[0], upper[1], None, upper[2]))
+    for tr, th, _, _ in sets:
+        if len(tr) != len(th):
+            raise PlanError("%d traces but %d thickness arrays" % (len(tr), len(th)),
+                            code="gcode.bad_input", fix="give one thickness array per trace")
+    offset, over = bed_overhang([t for tr, _, _, _ in sets for t in tr], settings.bed_mm,
+                                center=center)
+    _check_bed(over, settings.bed_mm)
+    split = settings.layers - settings.layers // 2 if upper is not None else settings.layers
+    spans = [(1, split), (split + 1, settings.layers)]
+    parts = []
+    for (tr, th, lab, arc), span in zip(sets, spans):
+        mv, q, starts, th_um, lab = _layer_moves(tr, th, settings, offset, lab, arc,
+                                                 arc_value_span)
+        group = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0],
+                      last=span[1], labels=lab)
+        parts.append((group, q, starts, th_um / 1000.0,
+                       estimate(q, starts, mv, group.text, settings, span)))
+    timing = parts[0][4]
+    stats = summary(parts, settings, clamped_segments)
+    header = header_lines(parts, settings, name, header_extra)
+    sink = _write(out, lambda sink: emit(sink, header, [p[0] for p in parts], timing, settings))
     stats["lines"] = sink.lines
     stats["bytes"] = sink.bytes
     stats["link_baud"] = settings.baud
     stats["link_moves_per_s"] = round(link_moves_per_s(settings.baud, sink.bytes, sink.lines), 1)
     stats["feed_percent"] = feed_percent(stats["moves_per_s"], stats["link_moves_per_s"])
     if settings.arc_tolerance_mm > 0:
-        moves_saved = stats["segments"] - len(mv["len"])
-        stats["lines_without_arcs"] = sink.lines + moves_saved * settings.layers
+        moves_saved = sum((len(p[1]) - (len(p[2]) - 1) - len(p[0].mv["len"])) * p[0].layers
+                          for p in parts)
+        stats["lines_without_arcs"] = sink.lines + moves_saved
     return stats
 
 
-def _layer_moves(traces, thetas_mm, settings, center, labels, arc_values, arc_value_span):
-    """One layer's moves: traces placed on the bed, quantised, thickness in whole um,
-    runs of chords fitted by arcs. Returns ``(mv, q, starts, th_um, labels)`` (see
-    :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um (segments, K) int, K
-    = 1 for equal layers, else one column per layer; labels of kept traces)."""
+def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_value_span):
+    """One layer's moves: traces placed on the bed (shifted by ``offset`` mm), quantised,
+    thickness in whole um, runs of chords fitted by arcs. Returns ``(mv, q, starts, th_um,
+    labels)`` (see :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um
+    (segments, K) int, K = 1 for equal layers, else one column per layer; labels of kept
+    traces)."""
     if labels is not None:
         labels = [labels[i] for i in range(len(traces))]
     columns = _layer_columns(thetas_mm, settings.layers)
     arrays = columns + ([arc_values] if arc_values is not None else [])
-    offset, over = bed_overhang(traces, settings.bed_mm, center=center)
-    _check_bed(over, settings.bed_mm)
     q, starts, vals, kept = _prepare(traces, arrays, offset)
     if labels is not None:
         labels = [labels[i] for i in kept]

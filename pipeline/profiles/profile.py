@@ -155,6 +155,9 @@ class CurvatureParams:
     # bilayer-fit` measures the printer's own and marks it `measured`.
     bilayer_c: float = _num(1.5, hi=20.0)
     status: str = _str("uncalibrated", choices=("uncalibrated", "measured"))
+    # How far each layer group may turn off the print direction to program the
+    # target's twist (0: both print along it). 20 and 40 degrees measured alike.
+    turn_max_deg: float = _num(20.0, strict=False, hi=45.0)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ thin shell from (almost) flat, as it starts in the bath."""
 import numpy as np
 
 from pipeline.layout import curvature
-from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
+from pipeline.simulation.shell import simulate_shell, tensor_rest, thickness_for
 
 # The programmed sheet's start: a small bump the way the program rises (from exactly
 # flat a sheet can creep, wrinkled, for hundreds of iterations before it pops).
@@ -20,14 +20,17 @@ def simulate_free(hf, mesh, flat, profile):
     # The printed sheet shrinks only within the material's range (the G-code clamps the
     # thickness the same way), so the simulation shrinks by the clamped sigma.
     sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
-    rest = directional_rest(flat.xy, mesh.faces, flat.direction, sigma)
     thick = thickness_for(sigma, profile.shrink_curve, profile.layers,
                           profile.thickness_mm.min, profile.thickness_mm.max)
     # Curvature through the layers: the lower layers shrink more where the target
-    # rises, so bending pulls toward the target instead of toward flat.
+    # rises, so bending pulls toward the target instead of toward flat; the two layer
+    # groups turn apart where it twists.
     program = curvature.program(
-        curvature.along_print_direction(hf, mesh, flat), mesh.faces, flat.xy, flat.direction,
-        sigma, thick, lim.s_min, lim.s_max, c=profile.curvature.bilayer_c)
-    sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, rest, thick,
-                         theta_rest=program.theta_rest, pop=BATH_BUMP)
+        curvature.target_tensor(hf, mesh, flat, sigma), mesh.faces, flat.xy, flat.direction,
+        sigma, thick, lim.s_min, lim.s_max, c=profile.curvature.bilayer_c,
+        turn_max_deg=profile.curvature.turn_max_deg)
+    A, B = program.group_tensors(flat.direction, sigma)
+    sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, tensor_rest(flat.xy, mesh.faces,
+                                                                         (A + B) / 2),
+                         thick, theta_rest=program.theta_rest, pop=BATH_BUMP)
     return program, sim

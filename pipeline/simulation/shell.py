@@ -9,7 +9,8 @@ the target, as in :mod:`pipeline.simulation.forward`.
 
 Either layout method gives the rest shapes: the isoline method's printing edges
 shrunk by their sigma (:func:`isoline_rest`), or a free layout's per-triangle
-shrink along its print direction (:func:`directional_rest`).
+shrink along its print direction (:func:`directional_rest`), or of its two layer groups
+(:func:`tensor_rest`).
 """
 
 import time
@@ -64,11 +65,18 @@ def directional_rest(xy, faces, direction, sigma):
     xy : (n, 2) mm flat layout; faces : (m, 3); direction : (m, 2) unit, layout
     coordinates; sigma : (m,). Returns rest_len (m, 3) mm, opposite each corner.
     """
+    d = np.asarray(direction, dtype=float)
+    return tensor_rest(xy, faces, np.asarray(sigma, dtype=float)[:, None, None]
+                       * np.einsum("mi,mj->mij", d, d))
+
+
+def tensor_rest(xy, faces, shrink):
+    """Rest side lengths of a sheet whose triangles shrink by the tensor ``shrink``
+    ((m, 2, 2), layout coordinates: a side ``v`` becomes ``v - shrink v``; two layer
+    groups along their own directions shrink by their mean). Returns (m, 3) mm."""
     P = np.asarray(xy, dtype=float)[faces]
     sides = P[:, [2, 0, 1]] - P[:, [1, 2, 0]]           # (m, 3, 2), opposite each corner
-    d = np.asarray(direction, dtype=float)
-    along = np.einsum("fkc,fc->fk", sides, d)
-    shrunk = sides - (np.asarray(sigma, dtype=float)[:, None] * along)[:, :, None] * d[:, None, :]
+    shrunk = sides - np.einsum("mij,mkj->mki", np.asarray(shrink, dtype=float), sides)
     return np.linalg.norm(shrunk, axis=2)
 
 
