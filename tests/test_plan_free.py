@@ -50,6 +50,11 @@ def test_a_twisted_sheet_prints_its_upper_layers_on_paths_of_their_own(saddle_pl
     plan, out = saddle_plan
     r = plan.report
     assert plan.curvature.crossed and r["curvature"]["crossing_deg"]["p95"] > 0.5
+    # Kept because the sheet rests closer so: both settlings are in the report.
+    tw = r["curvature"]["twist"]
+    assert tw["kept"] and tw["crossed_mean_displacement_mm"] < 0.95 * tw["along_mean_displacement_mm"]
+    assert r["simulation"]["mean_displacement_mm"] == pytest.approx(
+        tw["crossed_mean_displacement_mm"])
     d_b, d_t = plan.curvature.group_directions(plan.flat.direction)
     assert np.allclose(np.linalg.norm(d_t, axis=1), 1.0) and not np.allclose(d_b, d_t)
     up = r["toolpath"]["upper"]
@@ -61,6 +66,21 @@ def test_a_twisted_sheet_prints_its_upper_layers_on_paths_of_their_own(saddle_pl
     bed = np.asarray(plan.upper_toolpaths.traces[0][0]) + 0.0
     assert starts[1] != starts[plan.profile.layers]
     assert np.allclose(starts[plan.profile.layers][0], bed, atol=0.01)
+
+
+def test_a_dome_does_not_twist_and_prints_every_layer_on_one_set_of_paths(tmp_path):
+    """A cap has no twist: turning the layer groups apart brings its sheet no closer, so
+    they print along the same paths, planned once."""
+    hf = shapes.dome(diameter_mm=40.0, height_mm=8.0)
+    np.save(tmp_path / "d.npy", hf.z)
+    (tmp_path / "d.yaml").write_text("pixel_mm: %r\nmethod: free\n" % hf.pixel_mm)
+    plan = planner.run(tmp_path / "d.npy", load_profile("generic-0.5mm"), tmp_path / "out")
+    r = plan.report
+    assert r["curvature"]["twist"]["kept"] is False and not plan.curvature.crossed
+    assert plan.upper_toolpaths is None and "upper" not in r["toolpath"]
+    assert "upper_traces" not in r["gcode"]
+    assert r["simulation"]["mean_displacement_mm"] == pytest.approx(
+        r["curvature"]["twist"]["along_mean_displacement_mm"])
 
 
 def test_the_isoline_method_says_so(tmp_path):

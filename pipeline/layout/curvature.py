@@ -51,6 +51,7 @@ class CurvatureProgram:
     theta_rest : (h,) rad, rest dihedral angle of each hinge (``topology(faces).hinges``)
     turn_bottom, turn_top : (m,) rad, how far the lower and the upper layer group turn
     off ``d`` (counter-clockwise; both 0 without twist)
+    twist : the comparison that chose whether the groups turn apart, or None
     """
 
     kappa: np.ndarray
@@ -59,6 +60,7 @@ class CurvatureProgram:
     theta_rest: np.ndarray
     turn_bottom: np.ndarray = None
     turn_top: np.ndarray = None
+    twist: dict = None
 
     @property
     def crossed(self):
@@ -89,11 +91,16 @@ class CurvatureProgram:
                                "p95": float(np.percentile(self.delta_sigma, 95)),
                                "max_abs": float(np.abs(self.delta_sigma).max())}}
         if self.turn_bottom is not None:
-            apart = np.degrees(np.abs(self.turn_bottom - self.turn_top))
-            out["crossing_deg"] = {"p50": float(np.percentile(apart, 50)),
-                                   "p95": float(np.percentile(apart, 95)),
-                                   "max": float(apart.max())}
+            out["crossing_deg"] = self.crossing_deg()
+        if self.twist is not None:
+            out["twist"] = dict(self.twist)
         return out
+
+    def crossing_deg(self):
+        """How far apart the two layer groups print: {p50, p95, max} degrees."""
+        apart = np.degrees(np.abs(self.turn_bottom - self.turn_top))
+        return {"p50": float(np.percentile(apart, 50)), "p95": float(np.percentile(apart, 95)),
+                "max": float(apart.max())}
 
 
 def isoline_directions(xy, faces, vertex_level, level=(1.0, 0.0)):
