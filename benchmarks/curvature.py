@@ -5,17 +5,18 @@ The metric (each triangle's shrink along its print direction) is the plan's; onl
 rest dihedral angles change:
 
 - ``none``: bending toward flat;
-- ``plan``: the plan's program (curvature along ``d`` within the shrink range, and the twist
-  of its layer groups turned apart, which also shrink by their own mean);
+- ``plan_along``: the plan's bilayer program (curvature along ``d``, within the shrink range);
+- ``plan_crossed``: the same with the layer groups turned apart by the target's twist (they
+  shrink by their mean); the plan prints whichever rests closer (``plan_kept_crossing``);
 - ``along_d``: the target's curvature along ``d`` from the 1 mm smoothed field, no limit;
 - ``full_tensor``: the target's whole curvature (1 mm smoothed field) in the layout frame,
   which paths that shrink only along themselves cannot program;
 - ``target_angles``: the target mesh's own dihedral angles.
 
-The gap between ``plan`` and ``full_tensor`` is what curvature across the print
+The gap between ``plan_crossed`` and ``full_tensor`` is what curvature across the print
 direction would bring. Mean displacement as a fraction of the report's longest diameter.
 
-    python benchmarks/curvature.py [INPUT ...]   # default: starfish and the real tiles
+    python benchmarks/curvature.py [INPUT ...]   # default: three reference shapes, the real tiles
 """
 
 import json
@@ -32,13 +33,18 @@ TERRAIN = ROOT.parent / "shared" / "data" / "terrain"
 
 
 def _inputs(folder):
-    """The reference starfish written as a drop file, and the real tiles where present."""
+    """The reference starfish, elongated peak and three islands written as drop files, and
+    the real tiles where present."""
     from pipeline.input import shapes
-    hf = shapes.starfish(diameter_mm=175.0)
-    path = Path(folder) / "starfish.npy"
-    np.save(path, hf.z.astype(np.float32))
-    path.with_suffix(".yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
-    return [path] + sorted(TERRAIN.glob("*.png"))
+    paths = []
+    for name, hf in (("starfish", shapes.starfish(diameter_mm=175.0)),
+                     ("elongated_peak", shapes.elongated_peak()),
+                     ("three_islands", shapes.three_islands())):
+        path = Path(folder) / (name + ".npy")
+        np.save(path, hf.z.astype(np.float32))
+        path.with_suffix(".yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
+        paths.append(path)
+    return paths + sorted(TERRAIN.glob("*.png"))
 
 
 def study(path):
@@ -64,19 +70,27 @@ def study(path):
     d = flat.direction
     shrink = sigma[:, None, None] * np.einsum("mi,mj->mij", d, d)
     along = np.einsum("mi,mij,mj->m", d, K, d)[:, None, None] * np.einsum("mi,mj->mij", d, d)
-    A, B = p.curvature.group_tensors(d, sigma)
+    programs = {name: curvature.program(curvature.target_tensor(p.hf, mesh, flat, sigma),
+                                        mesh.faces, flat.xy, d, sigma, thick, lim.s_min,
+                                        lim.s_max, c=prof.curvature.bilayer_c, turn_max_deg=turn)
+                for name, turn in (("plan_along", 0.0),
+                                   ("plan_crossed", prof.curvature.turn_max_deg))}
     variants = {
-        "none": None, "plan": p.curvature.theta_rest,
+        "none": None, **{name: prog.theta_rest for name, prog in programs.items()},
         "along_d": curvature.rest_angles(flat.xy, mesh.faces, shrink, along, top),
         "full_tensor": curvature.rest_angles(flat.xy, mesh.faces, shrink, K, top),
         "target_angles": dihedral(mesh.vertices, top.hinges)}
     diameter = p.report["heightfield"]["longest_diameter_mm"]
     out = {"input": path.name, "fit_scale": (p.fit.applied_scale if p.fit else None),
-           "longest_diameter_mm": diameter, "triangles": len(mesh.faces)}
+           "longest_diameter_mm": diameter, "triangles": len(mesh.faces),
+           "plan_kept_crossing": p.curvature.crossed}
     for name, theta in variants.items():
         t = time.perf_counter()
-        # The plan's layer groups, turned apart, shrink by their mean.
-        own = tensor_rest(flat.xy, mesh.faces, (A + B) / 2) if name == "plan" else rest
+        own = rest
+        if name in programs:
+            # Layer groups turned apart shrink by their mean.
+            A, B = programs[name].group_tensors(d, sigma)
+            own = tensor_rest(flat.xy, mesh.faces, (A + B) / 2)
         sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, own, thick, theta_rest=theta,
                              pop=BATH_BUMP)
         out[name] = {"mean_displacement_pct": round(100 * sim.mean_displacement_mm / diameter, 3),

@@ -319,7 +319,8 @@ def _free_sheet(result, hf, profile, stage, timing):
               % profile.path_width_mm)
     result.xy_bed = _on_bed(flat.xy, profile)
     tp = profile.toolpath
-    sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
+    # The shrink as printed: the layout's, with what the curvature program added.
+    sigma = result.curvature.sigma
     # Crossed layer groups print their own stripes; the lower group's are the plan's
     # paths (pictures, screen print), the upper group's are printed above them.
     groups = [stripe_toolpaths(result.xy_bed, mesh.faces, d, sigma, profile.path_width_mm,

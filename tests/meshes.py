@@ -331,7 +331,11 @@ def free_sheet(hf, spacing_mm, programmed=True, turn_max_deg=None):
     shrink = sigma[:, None, None] * np.einsum("mi,mj->mij", flat.direction, flat.direction)
     theta = None
     if programmed:
-        prog = curvature.program(curvature.target_tensor(hf, mesh, flat, sigma), mesh.faces,
+        K = curvature.target_tensor(hf, mesh, flat, sigma)
+        sigma = curvature.room_for(K, flat.direction, sigma, thick, LIMITS.s_min, LIMITS.s_max,
+                                   added_max=SHEET_PROFILE.curvature.max_added_shrink)
+        thick = sheet_thickness(sigma)
+        prog = curvature.program(K, mesh.faces,
                                  flat.xy, flat.direction, sigma, thick, LIMITS.s_min,
                                  LIMITS.s_max, turn_max_deg=(
                                      SHEET_PROFILE.curvature.turn_max_deg

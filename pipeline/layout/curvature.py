@@ -52,6 +52,8 @@ class CurvatureProgram:
     turn_bottom, turn_top : (m,) rad, how far the lower and the upper layer group turn
     off ``d`` (counter-clockwise; both 0 without twist)
     twist : the comparison that chose whether the groups turn apart, or None
+    sigma : (m,) the mean shrink the program was made for (printed as such)
+    added : the shrink :func:`room_for` added to the layout's, {area_fraction, max}, or None
     """
 
     kappa: np.ndarray
@@ -61,6 +63,8 @@ class CurvatureProgram:
     turn_bottom: np.ndarray = None
     turn_top: np.ndarray = None
     twist: dict = None
+    sigma: np.ndarray = None
+    added: dict = None
 
     @property
     def crossed(self):
@@ -94,6 +98,8 @@ class CurvatureProgram:
             out["crossing_deg"] = self.crossing_deg()
         if self.twist is not None:
             out["twist"] = dict(self.twist)
+        if self.added is not None:
+            out["added_shrink"] = dict(self.added)
         return out
 
     def crossing_deg(self):
@@ -193,10 +199,24 @@ def program(K_target, faces, xy, direction, sigma, thickness_mm, s_min, s_max,
     turn_b, turn_t = crossing(np.einsum("mi,mij,mj->m", d, K, e) * h / c,
                               sigma + delta / 2, sigma - delta / 2, turn_max_deg)
     prog = CurvatureProgram(kappa=kappa, delta_sigma=delta, limited=limited,
-                            theta_rest=None, turn_bottom=turn_b, turn_top=turn_t)
+                            theta_rest=None, turn_bottom=turn_b, turn_top=turn_t, sigma=sigma)
     A, B = prog.group_tensors(d, sigma)
     prog.theta_rest = rest_angles(xy, faces, (A + B) / 2, c * (A - B) / h[:, None, None], top)
     return prog
+
+
+def room_for(K_target, direction, sigma, thickness_mm, s_min, s_max, c=BILAYER_C,
+             added_max=0.0):
+    """The mean shrink to print so that the bilayer has room for the target's curvature
+    along ``d``: (m,). A thickness difference needs shrink on both sides of the mean, so
+    where the layout asks less than ``s_min + |delta| / 2`` (the direction free, ``sigma``
+    near 0: a starfish's arms) the mean is raised to it, by at most ``added_max``. The
+    metric gives that much along ``d`` where the curvature is worth more."""
+    d = np.asarray(direction, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    want = np.abs(np.einsum("mi,mij,mj->m", d, np.asarray(K_target, dtype=float), d))
+    need = s_min + 0.5 * want * np.asarray(thickness_mm, dtype=float) / c
+    return np.clip(np.maximum(sigma, np.minimum(need, sigma + added_max)), None, s_max)
 
 
 def crossing(twist, s_bottom, s_top, turn_max_deg):

@@ -158,6 +158,9 @@ class CurvatureParams:
     # How far each layer group may turn off the print direction to program the
     # target's twist (0: both print along it). 20 and 40 degrees measured alike.
     turn_max_deg: float = _num(20.0, strict=False, hi=45.0)
+    # Shrink the program may add along the print direction where the layout leaves too
+    # little around the mean for the thickness difference the curvature wants (0: none).
+    max_added_shrink: float = _num(0.03, strict=False, hi=0.2)
 
 
 @dataclass(frozen=True)

@@ -28,16 +28,29 @@ def simulate_free(hf, mesh, flat, profile, twist=True):
     # The printed sheet shrinks only within the material's range (the G-code clamps the
     # thickness the same way), so the simulation shrinks by the clamped sigma.
     sigma = np.clip(flat.sigma, lim.s_min, lim.s_max)
-    thick = thickness_for(sigma, profile.shrink_curve, profile.layers,
-                          profile.thickness_mm.min, profile.thickness_mm.max)
+    cp = profile.curvature
+
+    def thickness(s):
+        return thickness_for(s, profile.shrink_curve, profile.layers,
+                             profile.thickness_mm.min, profile.thickness_mm.max)
     K = curvature.target_tensor(hf, mesh, flat, sigma)
+    # Where the layout leaves no shrink to bend with, a little is added along d.
+    laid = sigma
+    sigma = curvature.room_for(K, flat.direction, laid, thickness(laid), lim.s_min,
+                               lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
+    thick = thickness(sigma)
+    P = np.asarray(flat.xy, dtype=float)[mesh.faces]
+    u, v = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    area = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    added = {"area_fraction": float(area[sigma > laid].sum() / max(area.sum(), 1e-12)),
+             "max": float((sigma - laid).max(initial=0.0))}
 
     def settle(turn_max_deg):
         # Curvature through the layers: the lower layers shrink more where the target
         # rises, so bending pulls toward the target instead of toward flat; the two
         # layer groups turn apart where it twists.
         prog = curvature.program(K, mesh.faces, flat.xy, flat.direction, sigma, thick,
-                                 lim.s_min, lim.s_max, c=profile.curvature.bilayer_c,
+                                 lim.s_min, lim.s_max, c=cp.bilayer_c,
                                  turn_max_deg=turn_max_deg)
         A, B = prog.group_tensors(flat.direction, sigma)
         return prog, simulate_shell(mesh.vertices, mesh.faces, flat.xy,
@@ -45,11 +58,13 @@ def simulate_free(hf, mesh, flat, profile, twist=True):
                                     theta_rest=prog.theta_rest, pop=BATH_BUMP)
 
     program, sim = settle(0.0)
-    turn = profile.curvature.turn_max_deg
+    program.added = added
+    turn = cp.turn_max_deg
     if not twist or turn <= 0:
         return program, sim
     crossed, sim_crossed = settle(turn)
     kept = sim_crossed.mean_displacement_mm < (1.0 - TWIST_GAIN) * sim.mean_displacement_mm
+    crossed.added = added
     choice = (crossed, sim_crossed) if kept else (program, sim)
     choice[0].twist = {"kept": bool(kept), "turn_max_deg": float(turn),
                        "crossed_mean_displacement_mm": float(sim_crossed.mean_displacement_mm),

@@ -65,9 +65,12 @@ def directional_rest(xy, faces, direction, sigma):
     xy : (n, 2) mm flat layout; faces : (m, 3); direction : (m, 2) unit, layout
     coordinates; sigma : (m,). Returns rest_len (m, 3) mm, opposite each corner.
     """
+    P = np.asarray(xy, dtype=float)[faces]
+    sides = P[:, [2, 0, 1]] - P[:, [1, 2, 0]]           # (m, 3, 2), opposite each corner
     d = np.asarray(direction, dtype=float)
-    return tensor_rest(xy, faces, np.asarray(sigma, dtype=float)[:, None, None]
-                       * np.einsum("mi,mj->mij", d, d))
+    along = np.einsum("fkc,fc->fk", sides, d)
+    shrunk = sides - (np.asarray(sigma, dtype=float)[:, None] * along)[:, :, None] * d[:, None, :]
+    return np.linalg.norm(shrunk, axis=2)
 
 
 def tensor_rest(xy, faces, shrink):
