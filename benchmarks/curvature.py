@@ -1,19 +1,23 @@
 """What the programmed curvature is worth: one free layout, settled from flat as a thin
 shell under different rest curvatures. Prints JSON.
 
-The metric (each triangle's shrink along its print direction) is the plan's; only the
-rest dihedral angles change:
+The metric (each triangle's shrink along its print direction) is the layout's; the rows
+change the rest dihedral angles, and the plan's rows also the shrink the program adds:
 
 - ``none``: bending toward flat;
-- ``plan_along``: the plan's bilayer program (curvature along ``d``, within the shrink range);
-- ``plan_crossed``: the same with the layer groups turned apart by the target's twist (they
-  shrink by their mean); the plan prints whichever rests closer (``plan_kept_crossing``);
+- ``bilayer``: the bilayer program (curvature along ``d`` from the 5 mm smoothed field, within
+  the shrink range around the layout's shrink);
+- ``bilayer_room``: the same where the program adds shrink along ``d`` to make room for the
+  thickness difference (``curvature.room_for``; the metric changes there);
+- ``bilayer_room_crossed``: that with the layer groups turned apart by the target's twist
+  (they shrink by their mean); the plan prints whichever of the last two rests closer
+  (``plan_kept_crossing``);
 - ``along_d``: the target's curvature along ``d`` from the 1 mm smoothed field, no limit;
 - ``full_tensor``: the target's whole curvature (1 mm smoothed field) in the layout frame,
   which paths that shrink only along themselves cannot program;
 - ``target_angles``: the target mesh's own dihedral angles.
 
-The gap between ``plan_crossed`` and ``full_tensor`` is what curvature across the print
+The gap between the plan's rows and ``full_tensor`` is what curvature across the print
 direction would bring. Mean displacement as a fraction of the report's longest diameter.
 
     python benchmarks/curvature.py [INPUT ...]   # default: three reference shapes, the real tiles
@@ -70,13 +74,20 @@ def study(path):
     d = flat.direction
     shrink = sigma[:, None, None] * np.einsum("mi,mj->mij", d, d)
     along = np.einsum("mi,mij,mj->m", d, K, d)[:, None, None] * np.einsum("mi,mj->mij", d, d)
-    programs = {name: curvature.program(curvature.target_tensor(p.hf, mesh, flat, sigma),
-                                        mesh.faces, flat.xy, d, sigma, thick, lim.s_min,
-                                        lim.s_max, c=prof.curvature.bilayer_c, turn_max_deg=turn)
-                for name, turn in (("plan_along", 0.0),
-                                   ("plan_crossed", prof.curvature.turn_max_deg))}
+    K5 = curvature.target_tensor(p.hf, mesh, flat, sigma)
+    roomy = curvature.room_for(K5, d, sigma, thick, lim.s_min, lim.s_max,
+                               c=prof.curvature.bilayer_c,
+                               added_max=prof.curvature.max_added_shrink)
+    thick_roomy = thickness_for(roomy, prof.shrink_curve, prof.layers, prof.thickness_mm.min,
+                                prof.thickness_mm.max)
+    programs = {name: (curvature.program(K5, mesh.faces, flat.xy, d, s, h, lim.s_min, lim.s_max,
+                                         c=prof.curvature.bilayer_c, turn_max_deg=turn), s, h)
+                for name, s, h, turn in (
+                    ("bilayer", sigma, thick, 0.0),
+                    ("bilayer_room", roomy, thick_roomy, 0.0),
+                    ("bilayer_room_crossed", roomy, thick_roomy, prof.curvature.turn_max_deg))}
     variants = {
-        "none": None, **{name: prog.theta_rest for name, prog in programs.items()},
+        "none": None, **{name: prog[0].theta_rest for name, prog in programs.items()},
         "along_d": curvature.rest_angles(flat.xy, mesh.faces, shrink, along, top),
         "full_tensor": curvature.rest_angles(flat.xy, mesh.faces, shrink, K, top),
         "target_angles": dihedral(mesh.vertices, top.hinges)}
@@ -86,12 +97,13 @@ def study(path):
            "plan_kept_crossing": p.curvature.crossed}
     for name, theta in variants.items():
         t = time.perf_counter()
-        own = rest
+        own, h = rest, thick
         if name in programs:
-            # Layer groups turned apart shrink by their mean.
-            A, B = programs[name].group_tensors(d, sigma)
+            # The program's own shrink (added room; groups turned apart shrink by their mean).
+            prog, s, h = programs[name]
+            A, B = prog.group_tensors(d, s)
             own = tensor_rest(flat.xy, mesh.faces, (A + B) / 2)
-        sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, own, thick, theta_rest=theta,
+        sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, own, h, theta_rest=theta,
                              pop=BATH_BUMP)
         out[name] = {"mean_displacement_pct": round(100 * sim.mean_displacement_mm / diameter, 3),
                      "iterations": sim.iterations, "converged": sim.converged,
