@@ -37,7 +37,8 @@ PLAN_COLUMNS = [
      "max %.1f" % max(r["arm_tips_mm"])),
     ("holds smoothed to", lambda n, r: None if r.get("hold_smooth_mm") is None else
      "%g mm: %s" % (r["hold_smooth_mm"], _pct(r.get("hold_displacement")))),
-    ("traces", lambda n, r: r.get("traces")),
+    ("traces", lambda n, r: r.get("traces") if not r.get("upper_traces") else
+     "%d + %d" % (r["traces"], r["upper_traces"])),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
     ("overlap", lambda n, r: _pct(r.get("overlap"))),
@@ -129,7 +130,9 @@ def render(groups):
                 "", "Whole plans, each checked by the thin-shell simulation (printed thickness; "
                 "its answer changes by under 10 % when the mesh is halved). `free`: the relief "
                 "fitted to the material (`hostd plan --fit`, also where a sidecar asks for a "
-                "height), started flat with the curvature programmed through the layers. "
+                "height), started flat with the curvature programmed through the layers; "
+                "`traces` a + b where the lower and upper layer groups print paths of their own "
+                "(turned apart by the twist). "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump.", "", *_table(both), ""]
         out += _conditions(groups, ("methods",))

@@ -123,6 +123,8 @@ print(json.dumps({
     "coarse_iterations": r["simulation"]["coarse_iterations"],
     "simulated_vertices": r["simulation"]["sheet_vertices"],
     "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
+    "upper_traces": g.get("upper_traces"),
+    "twist_kept": ((r.get("curvature") or {}).get("twist") or {}).get("kept"),
     "coverage": round(r["toolpath"]["coverage"], 4),
     "gcode_lines": g["lines"], "gcode_bytes": g["bytes"], "moves_per_s": g["moves_per_s"],
     "estimated_print_s": g["estimated_print_s"],

@@ -106,7 +106,7 @@ def write_outputs(st, plan):
     st.write_image(out["toolpath.png"], render.toolpath_image(
         tp.traces, tp.sigma, lim.s_min, lim.s_max, prof.path_width_mm,
         travel=np.array(travel) if travel else None,
-        title="%s: tool paths, shrink per segment" % name))
+        title=_toolpath_title(plan)))
     flat3 = np.column_stack([flat.xy, np.zeros(len(flat.xy))])
     plyio.write_ply(st.path(out["flat.ply"]), flat3, mesh.faces)
     disp = sim.displacement_mm
@@ -177,6 +177,17 @@ def _fit_note(plan):
         return ""
     return " (relief lowered from %.1f to %.1f mm to form)" % (fit.requested_height_mm,
                                                               fit.max_height_mm)
+
+
+def _toolpath_title(plan):
+    """The tool-path picture draws one layer's paths: with crossed layer groups, the lower
+    group's, and the title says what the upper layers print instead."""
+    up = getattr(plan, "upper_toolpaths", None)
+    if up is None:
+        return "%s: tool paths, shrink per segment" % plan.name
+    return ("%s: lower layers' tool paths, shrink per segment (the upper layers print %d traces "
+            "of their own, turned up to %.0f degrees apart)"
+            % (plan.name, len(up.traces), plan.curvature.crossing_deg()["max"]))
 
 
 def _segment_deltas(plan, traces):
