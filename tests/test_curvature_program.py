@@ -287,3 +287,21 @@ def test_shrink_added_where_the_starfish_has_none_brings_its_arms_closer():
     padded, plain = rest[profile.curvature.max_added_shrink], rest[0.0]
     assert padded.mean_displacement_mm < 0.01 * 167.0 < plain.mean_displacement_mm
     assert padded.max_displacement_mm < 0.85 * plain.max_displacement_mm
+
+
+def test_an_odd_layer_count_prints_no_crossed_groups():
+    """A middle layer would print with one group and shear the sheet: with five layers
+    the saddle's groups stay along d; with six they turn apart."""
+    import dataclasses
+    from pipeline.layout.free import flatten_free
+    from pipeline.meshing.grid import build_grid_mesh
+    from pipeline.simulation.programmed import simulate_free
+    profile = load_profile("generic-0.5mm")
+    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=12.0)
+    mesh = build_grid_mesh(hf, 1.5)
+    lim = profile.shrink_limits
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=100)
+    six, _ = simulate_free(hf, mesh, flat, profile)
+    five, _ = simulate_free(hf, mesh, flat, dataclasses.replace(profile, layers=5))
+    assert profile.layers == 6 and six.twist is not None and six.crossed
+    assert five.twist is None and not five.crossed

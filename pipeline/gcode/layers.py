@@ -76,13 +76,20 @@ def text_of_moves(mv, settings, layers=None):
 class Group:
     """Moves printed by the layers ``first..last`` (1-based, inclusive): crossed layer
     groups print their own paths. mv : one layer's moves; text : :class:`MoveText`;
-    labels : one comment per trace, or None."""
+    labels : one comment per trace, or None; q : (n, 2) int um, the layer's points;
+    starts : (t + 1,) int, trace i owns ``q[starts[i]:starts[i + 1]]``; th_mm : (s, K)
+    each segment's thickness; timing : its layers' estimate
+    (:class:`pipeline.gcode.summary.Timing`)."""
 
     mv: dict
     text: MoveText
     first: int
     last: int
     labels: list = None
+    q: np.ndarray = None
+    starts: np.ndarray = None
+    th_mm: np.ndarray = None
+    timing: object = None
 
     @property
     def layers(self):

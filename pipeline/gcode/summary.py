@@ -56,36 +56,34 @@ def estimate(q, starts, mv, text, settings, layers=None):
     return Timing(float(t_total), float(length_mm), float(z_speed))
 
 
-def summary(parts, settings, clamped_segments):
+def summary(groups, settings, clamped_segments):
     """The report's ``gcode`` figures known before writing (``lines`` and ``bytes`` are
-    filled in by the writer). parts : one (group, q, starts, th_mm, timing) per
-    :class:`pipeline.gcode.layers.Group`, th_mm (s, K) each segment's thickness; where
-    layer groups print their own paths, counts add up over the groups and
+    filled in by the writer), from the :class:`pipeline.gcode.layers.Group` of each set of
+    paths; where layer groups print their own, counts add up over the groups and
     ``moves_per_s`` is the busiest group's."""
-    layers = settings.layers
-    th_all = np.concatenate([p[3].ravel() for p in parts])
-    filament = sum(p[0].text.filament_mm for p in parts)
-    lower, timing_lower = parts[0], parts[0][4]
+    th_all = np.concatenate([g.th_mm.ravel() for g in groups])
+    filament = sum(g.text.filament_mm for g in groups)
+    lower = groups[0]
     stats = {
-        "lines": 0, "bytes": 0, "layers": layers,
+        "lines": 0, "bytes": 0, "layers": settings.layers,
         "thickness_mm": {"min": float(th_all.min()), "max": float(th_all.max())},
         "clamped_segments": int(clamped_segments),
         "filament_mm": round(float(filament), 3),
         "filament_g": round(float(filament_g(filament, settings)), 3),
-        "estimated_print_s": round(sum(p[4].total_s for p in parts), 1), "bed_fits": True,
-        "travel_moves": sum((len(p[2]) - 1) * p[0].layers for p in parts),
-        "traces": len(lower[2]) - 1,
-        "segments": sum(len(p[1]) - (len(p[2]) - 1) for p in parts),
-        "extrusion_moves": sum(len(p[0].mv["len"]) * p[0].layers for p in parts),
-        "path_length_mm": round(timing_lower.path_length_mm, 3),
-        "moves_per_s": round(max(len(p[0].mv["len"]) / max(p[4].path_length_mm
-                                                            / settings.print_mm_s, 1e-9)
-                                 for p in parts), 1),
+        "estimated_print_s": round(sum(g.timing.total_s for g in groups), 1), "bed_fits": True,
+        "travel_moves": sum((len(g.starts) - 1) * g.layers for g in groups),
+        "traces": len(lower.starts) - 1,
+        "segments": sum(len(g.q) - (len(g.starts) - 1) for g in groups),
+        "extrusion_moves": sum(len(g.mv["len"]) * g.layers for g in groups),
+        "path_length_mm": round(lower.timing.path_length_mm, 3),
+        "moves_per_s": round(max(len(g.mv["len"]) / max(g.timing.path_length_mm
+                                                         / settings.print_mm_s, 1e-9)
+                                 for g in groups), 1),
     }
-    if len(parts) > 1:
-        stats["upper_traces"] = len(parts[1][2]) - 1
+    if len(groups) > 1:
+        stats["upper_traces"] = len(groups[1].starts) - 1
     if settings.arc_tolerance_mm > 0:
-        stats["arcs"] = sum(int((p[0].mv["kind"] != 1).sum()) * p[0].layers for p in parts)
+        stats["arcs"] = sum(int((g.mv["kind"] != 1).sum()) * g.layers for g in groups)
     return stats
 
 
@@ -93,22 +91,21 @@ def filament_g(filament_mm, settings):
     return filament_mm * settings.filament_area_mm2 / 1000.0 * settings.filament_density_g_cm3
 
 
-def header_lines(parts, settings, name, extra=()):
-    """The file's opening comment lines (viewer furniture and a human summary).
-
-    parts : as :func:`summary`'s; th_mm (segments, K) each segment's thickness, for all
-    layers (K = 1) or each."""
+def header_lines(groups, settings, name, extra=()):
+    """The file's opening comment lines (viewer furniture and a human summary), from the
+    :class:`pipeline.gcode.layers.Group` of each set of paths."""
     layers = settings.layers
-    stacks = [p[3][:, 0] * layers if p[3].shape[1] == 1 else p[3].sum(axis=1) for p in parts]
-    th_all = np.concatenate([p[3].ravel() for p in parts])
+    stacks = [g.th_mm[:, 0] * layers if g.th_mm.shape[1] == 1 else g.th_mm.sum(axis=1)
+              for g in groups]
+    th_all = np.concatenate([g.th_mm.ravel() for g in groups])
     # Arcs bulge at most the arc tolerance past their end points: ignored here.
-    xy_all = np.concatenate([np.concatenate([p[0].mv["end"], p[0].mv["start"]])
-                             for p in parts]) / 1000.0
+    xy_all = np.concatenate([np.concatenate([g.mv["end"], g.mv["start"]])
+                             for g in groups]) / 1000.0
     lo_xy, hi_xy = xy_all.min(axis=0), xy_all.max(axis=0)
-    f_mm = sum(p[0].text.filament_mm for p in parts)
-    total_s = sum(p[4].total_s for p in parts)
+    f_mm = sum(g.text.filament_mm for g in groups)
+    total_s = sum(g.timing.total_s for g in groups)
     area = settings.filament_area_mm2
-    traces = " / ".join("%d" % len(p[0].text.trace_ends) for p in parts)
+    traces = " / ".join("%d" % len(g.text.trace_ends) for g in groups)
     return [
         ";FLAVOR:Marlin",
         ";TIME:%d" % round(total_s),
@@ -122,7 +119,7 @@ def header_lines(parts, settings, name, extra=()):
         "; job: %s" % one_line(name),
         "; profile: %s" % one_line(settings.profile_name),
         "; layers: %d, traces per layer: %s, thickness %s..%s mm, E %s" % (
-            layers, traces + (" (lower / upper layer group)" if len(parts) > 1 else ""),
+            layers, traces + (" (lower / upper layer group)" if len(groups) > 1 else ""),
             fmt(th_all.min()), fmt(th_all.max()),
             "relative" if settings.relative_e else "absolute"),
         "; filament used [mm] = %.2f" % f_mm,

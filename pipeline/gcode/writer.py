@@ -341,26 +341,25 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     _check_bed(over, settings.bed_mm)
     split = settings.layers - settings.layers // 2 if upper is not None else settings.layers
     spans = [(1, split), (split + 1, settings.layers)]
-    parts = []
+    groups = []
     for (tr, th, lab, arc), span in zip(sets, spans):
         mv, q, starts, th_um, lab = _layer_moves(tr, th, settings, offset, lab, arc,
                                                  arc_value_span)
-        group = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0],
-                      last=span[1], labels=lab)
-        parts.append((group, q, starts, th_um / 1000.0,
-                       estimate(q, starts, mv, group.text, settings, span)))
-    timing = parts[0][4]
-    stats = summary(parts, settings, clamped_segments)
-    header = header_lines(parts, settings, name, header_extra)
-    sink = _write(out, lambda sink: emit(sink, header, [p[0] for p in parts], timing, settings))
+        g = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0], last=span[1],
+                  labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0)
+        g.timing = estimate(q, starts, mv, g.text, settings, span)
+        groups.append(g)
+    stats = summary(groups, settings, clamped_segments)
+    header = header_lines(groups, settings, name, header_extra)
+    sink = _write(out, lambda sink: emit(sink, header, groups, groups[0].timing, settings))
     stats["lines"] = sink.lines
     stats["bytes"] = sink.bytes
     stats["link_baud"] = settings.baud
     stats["link_moves_per_s"] = round(link_moves_per_s(settings.baud, sink.bytes, sink.lines), 1)
     stats["feed_percent"] = feed_percent(stats["moves_per_s"], stats["link_moves_per_s"])
     if settings.arc_tolerance_mm > 0:
-        moves_saved = sum((len(p[1]) - (len(p[2]) - 1) - len(p[0].mv["len"])) * p[0].layers
-                          for p in parts)
+        moves_saved = sum((len(g.q) - (len(g.starts) - 1) - len(g.mv["len"])) * g.layers
+                          for g in groups)
         stats["lines_without_arcs"] = sink.lines + moves_saved
     return stats
 

@@ -59,7 +59,9 @@ def simulate_free(hf, mesh, flat, profile, twist=True):
 
     program, sim = settle(0.0)
     program.added = added
-    turn = cp.turn_max_deg
+    # Crossed groups need an even layer count: a middle layer printed with either group
+    # would shear the sheet's mean shrink by twist / (2 * layers).
+    turn = cp.turn_max_deg if profile.layers % 2 == 0 else 0.0
     if not twist or turn <= 0:
         return program, sim
     crossed, sim_crossed = settle(turn)
