@@ -323,13 +323,13 @@ def _free_sheet(result, hf, profile, stage, timing):
     sigma = result.curvature.sigma
     # Crossed layer groups print their own stripes; the lower group's are the plan's
     # paths (pictures, screen print), the upper group's are printed above them.
-    groups = [stripe_toolpaths(result.xy_bed, mesh.faces, d, sigma, profile.path_width_mm,
-                               merge_angle_deg=tp.merge_angle_deg, merge_sigma=tp.merge_sigma,
-                               level=mesh.vertex_level)
-              for d in result.curvature.group_directions(flat.direction)[
-                  :2 if result.curvature.crossed else 1]]
-    result.toolpaths = groups[0]
-    result.upper_toolpaths = groups[1] if len(groups) > 1 else None
+    def stripes(direction):
+        return stripe_toolpaths(result.xy_bed, mesh.faces, direction, sigma,
+                                profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
+                                merge_sigma=tp.merge_sigma, level=mesh.vertex_level)
+    lower, upper = result.curvature.group_directions(flat.direction)
+    result.toolpaths = stripes(lower)
+    result.upper_toolpaths = stripes(upper) if result.curvature.crossed else None
     timing["toolpath"] = time.perf_counter() - t
 
 
