@@ -230,25 +230,35 @@ def test_free_directions_turn_the_way_the_target_bends_most():
     assert np.allclose(bent.xy, flat.xy) and np.allclose(bent.sigma, flat.sigma)
 
 
+def plan_layout(hf):
+    """The shipped profile and the free layout of ``hf`` as the plan lays it out (its
+    mesh, its iterations, the free directions bent): (profile, mesh, layout)."""
+    from pipeline.layout.free import FREE_BELOW, flatten_free
+    from pipeline.meshing.grid import build_grid_mesh
+    profile = load_profile("generic-0.5mm")
+    mesh = build_grid_mesh(hf, profile.mesh.grid_mm)
+    lim = profile.shrink_limits
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=profile.flatten.free_iterations)
+    return profile, mesh, curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+
+
+def with_curvature(profile, **changes):
+    """``profile`` with its ``curvature`` settings changed."""
+    import dataclasses
+    return dataclasses.replace(profile, curvature=dataclasses.replace(profile.curvature,
+                                                                      **changes))
+
+
 def test_turning_the_layer_groups_apart_brings_the_elongated_peak_within_one_percent():
     """The elongated peak twists along its flanks: with the layer groups turned apart by
     the twist its sheet rests within 1 % of its length (160 mm), a fifth closer than
     printed along ``d`` alone."""
-    import dataclasses
-    from pipeline.layout.free import FREE_BELOW, flatten_free
-    from pipeline.meshing.grid import build_grid_mesh
     from pipeline.simulation.programmed import simulate_free
-    profile = load_profile("generic-0.5mm")
     hf = shapes.elongated_peak()
-    mesh = build_grid_mesh(hf, profile.mesh.grid_mm)
-    lim = profile.shrink_limits
-    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=profile.flatten.free_iterations)
-    flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+    profile, mesh, flat = plan_layout(hf)
     rest = {}
     for turn in (profile.curvature.turn_max_deg, 0.0):
-        p = dataclasses.replace(profile, curvature=dataclasses.replace(profile.curvature,
-                                                                       turn_max_deg=turn))
-        prog, sim = simulate_free(hf, mesh, flat, p)
+        prog, sim = simulate_free(hf, mesh, flat, with_curvature(profile, turn_max_deg=turn))
         assert prog.crossed == (turn > 0)
         rest[turn] = sim.mean_displacement_mm
     twisted, plain = rest[profile.curvature.turn_max_deg], rest[0.0]
@@ -269,21 +279,12 @@ def test_shrink_added_where_the_starfish_has_none_brings_its_arms_closer():
     """The starfish's arms need no shrink, so a bilayer has no room there and they stay
     flatter than the target; printed with the little shrink the program asks for, the
     sheet rests within 1 % of its diameter (167 mm) and its arms come closer."""
-    import dataclasses
-    from pipeline.layout.free import FREE_BELOW, flatten_free
-    from pipeline.meshing.grid import build_grid_mesh
     from pipeline.simulation.programmed import simulate_free
-    profile = load_profile("generic-0.5mm")
     hf = shapes.starfish(diameter_mm=175.0)
-    mesh = build_grid_mesh(hf, profile.mesh.grid_mm)
-    lim = profile.shrink_limits
-    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=profile.flatten.free_iterations)
-    flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+    profile, mesh, flat = plan_layout(hf)
     rest = {}
     for added in (profile.curvature.max_added_shrink, 0.0):
-        p = dataclasses.replace(profile, curvature=dataclasses.replace(
-            profile.curvature, max_added_shrink=added))
-        prog, sim = simulate_free(hf, mesh, flat, p)
+        prog, sim = simulate_free(hf, mesh, flat, with_curvature(profile, max_added_shrink=added))
         assert (prog.added["area_fraction"] > 0.2) == (added > 0)
         rest[added] = sim
     padded, plain = rest[profile.curvature.max_added_shrink], rest[0.0]
