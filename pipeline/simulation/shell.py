@@ -65,8 +65,7 @@ def directional_rest(xy, faces, direction, sigma):
     xy : (n, 2) mm flat layout; faces : (m, 3); direction : (m, 2) unit, layout
     coordinates; sigma : (m,). Returns rest_len (m, 3) mm, opposite each corner.
     """
-    P = np.asarray(xy, dtype=float)[faces]
-    sides = P[:, [2, 0, 1]] - P[:, [1, 2, 0]]           # (m, 3, 2), opposite each corner
+    sides = _sides(xy, faces)
     d = np.asarray(direction, dtype=float)
     along = np.einsum("fkc,fc->fk", sides, d)
     shrunk = sides - (np.asarray(sigma, dtype=float)[:, None] * along)[:, :, None] * d[:, None, :]
@@ -77,10 +76,15 @@ def tensor_rest(xy, faces, shrink):
     """Rest side lengths of a sheet whose triangles shrink by the tensor ``shrink``
     ((m, 2, 2), layout coordinates: a side ``v`` becomes ``v - shrink v``; two layer
     groups along their own directions shrink by their mean). Returns (m, 3) mm."""
-    P = np.asarray(xy, dtype=float)[faces]
-    sides = P[:, [2, 0, 1]] - P[:, [1, 2, 0]]           # (m, 3, 2), opposite each corner
+    sides = _sides(xy, faces)
     shrunk = sides - np.einsum("mij,mkj->mki", np.asarray(shrink, dtype=float), sides)
     return np.linalg.norm(shrunk, axis=2)
+
+
+def _sides(xy, faces):
+    """Each triangle's sides in the layout, opposite each corner: (m, 3, 2) mm."""
+    P = np.asarray(xy, dtype=float)[faces]
+    return P[:, [2, 0, 1]] - P[:, [1, 2, 0]]
 
 
 def thickness_for(sigma_face, shrink, layers, lo_mm, hi_mm):
