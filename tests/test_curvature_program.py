@@ -9,7 +9,8 @@ from pipeline.layout import curvature
 from pipeline.mechanics.pd import minimize_lbfgs
 from pipeline.mechanics.shell import ShellSystem
 from pipeline.profiles.profile import load_profile
-from pipeline.simulation.shell import tensor_rest
+from pipeline.simulation.programmed import BATH_BUMP
+from pipeline.simulation.shell import simulate_shell, tensor_rest, thickness_for
 
 from meshes import flat_sheet, free_sheet, roll_curvature
 
@@ -308,3 +309,28 @@ def test_an_odd_layer_count_prints_no_crossed_groups():
     five, _ = simulate_free(hf, mesh, flat, dataclasses.replace(profile, layers=5))
     assert profile.layers == 6 and six.twist is not None and six.crossed
     assert five.twist is None and not five.crossed
+
+
+def test_the_twist_added_to_the_settled_sheet_rests_where_a_flat_start_with_it_does():
+    """The plan adds the twist to the sheet the bilayer has settled and lets it settle
+    on; a sheet started flat with the groups turned apart from the first comes to rest
+    at the same distance from the target (within 2 %)."""
+    from pipeline.layout.free import flatten_free
+    from pipeline.meshing.grid import build_grid_mesh
+    from pipeline.simulation.programmed import simulate_free
+    profile = load_profile("generic-0.5mm")
+    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=12.0)
+    mesh = build_grid_mesh(hf, 1.5)
+    lim = profile.shrink_limits
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=100)
+    prog, sim = simulate_free(hf, mesh, flat, profile)
+    assert prog.twist["kept"] and prog.twist["crossed_at_rest"]
+    # The same program from a flat start.
+    sigma = prog.sigma
+    A, B = prog.group_tensors(flat.direction, sigma)
+    h = thickness_for(sigma, profile.shrink_curve, profile.layers, profile.thickness_mm.min,
+                      profile.thickness_mm.max)
+    from_flat = simulate_shell(mesh.vertices, mesh.faces, flat.xy,
+                               tensor_rest(flat.xy, mesh.faces, (A + B) / 2), h,
+                               theta_rest=prog.theta_rest, pop=BATH_BUMP)
+    assert sim.mean_displacement_mm == pytest.approx(from_flat.mean_displacement_mm, rel=0.02)

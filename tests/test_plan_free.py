@@ -51,6 +51,7 @@ def test_a_twisted_sheet_prints_its_upper_layers_on_paths_of_their_own(saddle_pl
     r = plan.report
     assert plan.curvature.crossed and r["curvature"]["crossing_deg"]["p95"] > 0.5
     # Kept because the sheet rests closer so: both settlings are in the report.
+    assert r["curvature"]["twist"]["crossed_at_rest"]
     tw = r["curvature"]["twist"]
     assert tw["kept"] and tw["crossed_mean_displacement_mm"] < 0.95 * tw["along_mean_displacement_mm"]
     assert r["simulation"]["mean_displacement_mm"] == pytest.approx(
@@ -81,6 +82,8 @@ def test_a_dome_does_not_twist_and_prints_every_layer_on_one_set_of_paths(tmp_pa
     assert "upper_traces" not in r["gcode"]
     assert r["simulation"]["mean_displacement_mm"] == pytest.approx(
         r["curvature"]["twist"]["along_mean_displacement_mm"])
+    # Tried for a few iterations from the settled sheet, not settled a second time.
+    assert not r["curvature"]["twist"]["crossed_at_rest"]
 
 
 def test_the_isoline_method_says_so(tmp_path):

@@ -95,7 +95,8 @@ def thickness_for(sigma_face, shrink, layers, lo_mm, hi_mm):
 
 
 def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None, pop=0.15,
-                   iterations=600, rest_tol=2e-5, callback=None, clamped=0, ramp=(1.0,)):
+                   iterations=600, rest_tol=2e-5, callback=None, clamped=0, ramp=(1.0,),
+                   start=None):
     """Let the flat sheet take its rest shapes and settle; compare with the target.
 
     Parameters
@@ -112,6 +113,7 @@ def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None,
         under in turn, each from the last one's shape: the bath heats a sheet
         gradually, and a sheet shrunk all at once from flat can buckle into a
         state the gradual one never reaches
+    start : (n, 3) mm, optional, the shape to settle from instead of the flat sheet
 
     Returns
     -------
@@ -125,6 +127,8 @@ def simulate_shell(vertices, faces, xy, rest_len, thickness_mm, theta_rest=None,
     X = np.zeros((3, len(V)))
     X[:2] = xy.T
     X[2] = pop_profile(xy, topology(faces, len(V)), pop)
+    if start is not None:
+        X = np.array(start, dtype=float).T
     flat_len = face_lengths(np.c_[xy, np.zeros(len(xy))], faces)
     energy, it = [], 0
     for t in ramp:
