@@ -293,18 +293,24 @@ def test_shrink_added_where_the_starfish_has_none_brings_its_arms_closer():
     assert padded.max_displacement_mm < 0.85 * plain.max_displacement_mm
 
 
-def test_an_odd_layer_count_prints_no_crossed_groups():
-    """A middle layer would print with one group and shear the sheet: with five layers
-    the saddle's groups stay along d; with six they turn apart."""
-    import dataclasses
+def small_saddle():
+    """A 60 mm hyperbolic paraboloid on a 1.5 mm grid, laid out free in 100 iterations,
+    and the shipped profile: (profile, height field, mesh, layout). It twists."""
     from pipeline.layout.free import flatten_free
     from pipeline.meshing.grid import build_grid_mesh
-    from pipeline.simulation.programmed import simulate_free
     profile = load_profile("generic-0.5mm")
     hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=12.0)
     mesh = build_grid_mesh(hf, 1.5)
     lim = profile.shrink_limits
-    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=100)
+    return profile, hf, mesh, flatten_free(mesh, lim.s_min, lim.s_max, iterations=100)
+
+
+def test_an_odd_layer_count_prints_no_crossed_groups():
+    """A middle layer would print with one group and shear the sheet: with five layers
+    the saddle's groups stay along d; with six they turn apart."""
+    import dataclasses
+    from pipeline.simulation.programmed import simulate_free
+    profile, hf, mesh, flat = small_saddle()
     six, _ = simulate_free(hf, mesh, flat, profile)
     five, _ = simulate_free(hf, mesh, flat, dataclasses.replace(profile, layers=5))
     assert profile.layers == 6 and six.twist is not None and six.crossed
@@ -315,14 +321,8 @@ def test_the_twist_added_to_the_settled_sheet_rests_where_a_flat_start_with_it_d
     """The plan adds the twist to the sheet the bilayer has settled and lets it settle
     on; a sheet started flat with the groups turned apart from the first comes to rest
     at the same distance from the target (within 2 %)."""
-    from pipeline.layout.free import flatten_free
-    from pipeline.meshing.grid import build_grid_mesh
     from pipeline.simulation.programmed import simulate_free
-    profile = load_profile("generic-0.5mm")
-    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=12.0)
-    mesh = build_grid_mesh(hf, 1.5)
-    lim = profile.shrink_limits
-    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=100)
+    profile, hf, mesh, flat = small_saddle()
     prog, sim = simulate_free(hf, mesh, flat, profile)
     assert prog.twist["kept"] and prog.twist["crossed_at_rest"]
     # The same program from a flat start.
