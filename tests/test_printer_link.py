@@ -408,3 +408,27 @@ def test_cancel_while_heating_breaks_the_wait():
         assert job_commands(sim) == lines[:result["sent"]] + script(DEFAULT_CANCEL_GCODE)
         wait_for(lambda: printer.temperatures.current().get("T", {}).get("target") == 0,
                  what="heater off reported")
+
+
+def test_a_link_closed_while_it_connects_stops_cleanly(monkeypatch):
+    """A daemon shut down while its printer connects: close() runs on another thread
+    while connect() is starting the driver thread. Neither may fail on a thread that
+    is not started yet; connect() says the link was closed."""
+    import types
+    from hostd.printer import link as link_module
+    from hostd.printer.link import Printer
+    holder = {}
+
+    class Racing(threading.Thread):
+        def start(self):
+            closer = threading.Thread(target=holder["printer"].close)
+            closer.start()
+            closer.join(5)
+            super().start()
+
+    monkeypatch.setattr(link_module, "threading", types.SimpleNamespace(Thread=Racing))
+    printer = Printer("/dev/null-hostd-no-such-port", LinkSettings())
+    holder["printer"] = printer
+    with pytest.raises(PrinterError) as err:
+        printer.connect(timeout_s=2.0)
+    assert err.value.code == "state" and "closed while connecting" in str(err.value)

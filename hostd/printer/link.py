@@ -59,8 +59,14 @@ class Printer(Driver):
     def connect(self, timeout_s=None):
         """Open the port, handshake, and return when idle; raises PrinterError."""
         if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="hostd-link", daemon=True)
-            self._thread.start()
+            # Published only once started: close() from another thread (a daemon shut
+            # down while its printer connects) joins a thread that runs, or none.
+            thread = threading.Thread(target=self._run, name="hostd-link", daemon=True)
+            thread.start()
+            self._thread = thread
+            if self._closing:
+                self.close()
+                raise PrinterError("state", "closed while connecting")
         budget = timeout_s or (self.settings.open_timeout_s + self.settings.reset_wait_s
                                + self.settings.handshake_timeout_s * (self.settings.handshake_attempts + 3))
         return self._call("connect", timeout_s=budget)
