@@ -78,10 +78,10 @@ def write_outputs(st, plan):
     tp, up = plan.toolpaths, getattr(plan, "upper_toolpaths", None)
     t = time.perf_counter()
     try:
+        deltas = _segment_deltas(plan, tp.traces, *([up.traces] if up else []))
         stats = gcode.write_gcode(
             tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name, center=False,
-            deltas=_segment_deltas(plan, tp.traces),
-            upper=(up.traces, up.sigma, _segment_deltas(plan, up.traces)) if up else None)
+            deltas=deltas[0], upper=(up.traces, up.sigma, deltas[1]) if up else None)
     except PlanError as e:
         raise _blocked_first(plan, e) from e
     if plan.blocked:
@@ -190,20 +190,22 @@ def _toolpath_title(plan):
             % (plan.name, len(up.traces), plan.curvature.crossing_deg()["max"]))
 
 
-def _segment_deltas(plan, traces):
-    """The bilayer of each segment of ``traces`` (the program of the triangle it crosses,
-    found by its midpoint's nearest triangle centre), or None without a program."""
+def _segment_deltas(plan, *trace_sets):
+    """The bilayer of each segment of each set of traces (the program of the triangle it
+    crosses, found by its midpoint's nearest triangle centre): one list per set, each
+    None without a program."""
     prog = getattr(plan, "curvature", None)
     if prog is None:
-        return None
+        return [None] * len(trace_sets)
     from scipy.spatial import cKDTree
-    centres = plan.xy_bed[plan.mesh.faces].mean(axis=1)
-    tree = cKDTree(centres)
+    tree = cKDTree(plan.xy_bed[plan.mesh.faces].mean(axis=1))
     out = []
-    for p in traces:
-        p = np.asarray(p, dtype=float)
-        _, f = tree.query((p[1:] + p[:-1]) / 2)
-        out.append(prog.delta_sigma[f])
+    for traces in trace_sets:
+        found = []
+        for p in traces:
+            p = np.asarray(p, dtype=float)
+            found.append(prog.delta_sigma[tree.query((p[1:] + p[:-1]) / 2)[1]])
+        out.append(found)
     return out
 
 

@@ -47,30 +47,36 @@ def simulate_free(hf, mesh, flat, profile, twist=True):
                                lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
     thick = thickness(sigma)
 
-    def settle(turn_max_deg, **kw):
+    added = _added(flat.xy, mesh.faces, laid, sigma)
+
+    def programmed(turn_max_deg):
         # Curvature through the layers: the lower layers shrink more where the target
         # rises, so bending pulls toward the target instead of toward flat; the two
         # layer groups turn apart where it twists.
         prog = curvature.program(K, mesh.faces, flat.xy, flat.direction, sigma, thick,
                                  lim.s_min, lim.s_max, c=cp.bilayer_c,
                                  turn_max_deg=turn_max_deg)
-        prog.added = _added(flat.xy, mesh.faces, laid, sigma)
-        A, B = prog.group_tensors(flat.direction, sigma)
-        return prog, simulate_shell(mesh.vertices, mesh.faces, flat.xy,
-                                    tensor_rest(flat.xy, mesh.faces, (A + B) / 2), thick,
-                                    theta_rest=prog.theta_rest, pop=BATH_BUMP, **kw)
+        prog.added = added
+        return prog
 
-    program, sim = settle(0.0)
+    def settle(prog, **kw):
+        A, B = prog.group_tensors(flat.direction, sigma)
+        return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
+                              tensor_rest(flat.xy, mesh.faces, (A + B) / 2), thick,
+                              theta_rest=prog.theta_rest, pop=BATH_BUMP, **kw)
+
+    program = programmed(0.0)
+    sim = settle(program)
     # Crossed groups need an even layer count: a middle layer printed with either group
     # would shear the sheet's mean shrink by twist / (2 * layers).
     turn = cp.turn_max_deg if profile.layers % 2 == 0 else 0.0
     if not twist or turn <= 0:
         return program, sim
-    crossed, probe = settle(turn, start=sim.vertices, iterations=PROBE_ITERATIONS)
+    crossed = programmed(turn)
+    probe = settle(crossed, start=sim.vertices, iterations=PROBE_ITERATIONS)
     tried = probe
     if probe.mean_displacement_mm < (1.0 - TWIST_GAIN) * sim.mean_displacement_mm:
-        tried = settle(turn, start=probe.vertices)[1]
-        tried = _continued(tried, sim, probe)
+        tried = _continued(settle(crossed, start=probe.vertices), sim, probe)
     kept = tried.mean_displacement_mm < (1.0 - TWIST_GAIN) * sim.mean_displacement_mm
     choice = (crossed, tried) if kept else (program, sim)
     choice[0].twist = {"kept": bool(kept), "turn_max_deg": float(turn),
