@@ -103,14 +103,19 @@ def target_frames(vertices, faces):
 def svd2(J):
     """Signed SVD of 2x2 matrices: J = U diag(s1, s2) V^T with U, V rotations and
     s1 >= |s2| (s2 < 0 for a reflection). J : (m, 2, 2). Returns U, s (m, 2), V."""
+    phi, s, theta = _svd2_angles(J)
+    return _rot(phi), s, _rot(-theta)
+
+
+def _svd2_angles(J):
+    """:func:`svd2` as the angles of its rotations: (phi (m,), s (m, 2), theta (m,)),
+    U = rot(phi), V = rot(-theta)."""
     a, b, c, d = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
     E, F = (a + d) / 2, (a - d) / 2
     G, H = (c + b) / 2, (c - b) / 2
     Q, R = np.hypot(E, H), np.hypot(F, G)
-    s1, s2 = Q + R, Q - R
     a1, a2 = np.arctan2(G, F), np.arctan2(H, E)
-    theta, phi = (a2 - a1) / 2, (a2 + a1) / 2
-    return _rot(phi), np.stack([s1, s2], axis=1), _rot(-theta)
+    return (a2 + a1) / 2, np.stack([Q + R, Q - R], axis=1), (a2 - a1) / 2
 
 
 def _rot(angle):
@@ -125,12 +130,18 @@ def project(J, lam_lo, lam_hi):
     With ``lambda >= 1`` the larger singular value becomes ``lambda`` (clamped) and the
     smaller one 1; the singular vectors stay, which is the nearest point of the set
     (von Neumann's trace inequality)."""
-    U, s, V = svd2(J)
+    phi, s, theta = _svd2_angles(J)
     lam = np.clip(s[:, 0], lam_lo, lam_hi)
-    S = np.zeros_like(J)
-    S[:, 0, 0] = lam
-    S[:, 1, 1] = 1.0
-    return U @ S @ np.transpose(V, (0, 2, 1)), lam, U
+    # U diag(lam, 1) V^T written out: the batched 2x2 products cost three times more.
+    cp, sp_, ct, st = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
+    P = np.empty_like(J)
+    P[:, 0, 0] = lam * cp * ct - sp_ * st
+    P[:, 0, 1] = -lam * cp * st - sp_ * ct
+    P[:, 1, 0] = lam * sp_ * ct + cp * st
+    P[:, 1, 1] = cp * ct - lam * sp_ * st
+    U = np.empty_like(J)
+    U[:, 0, 0], U[:, 0, 1], U[:, 1, 0], U[:, 1, 1] = cp, -sp_, sp_, cp
+    return P, lam, U
 
 
 def violation(J, lam_lo, lam_hi, tol=INVALID_TOL):
