@@ -267,24 +267,38 @@ def _refuse_too_high(result, hf, profile, sidecar, opts, timing):
     timing["fit"] = time.perf_counter() - t
     result.problems.append({
         "code": "fit.too_high",
-        "message": "the relief asked for (%.1f mm) does not form: %.1f %% of the sheet "
+        "message": "the relief asked for (%s) does not form: %.1f %% of the sheet "
                    "needs more than the material can do; at most %.1f mm forms" % (
-                       result.fit.requested_height_mm, 100 * result.flat.invalid_area_fraction,
+                       _asked(result.fit), 100 * result.flat.invalid_area_fraction,
                        result.fit.max_height_mm),
         "fix": "write `%s` in the sidecar %s%s (or remove its height to let hostd fit it)"
                % (result.fit.sidecar_line(), Path(sidecar.source).name if sidecar.source
                   else "", result.fit.smoothing_advice())})
 
 
+def _asked(fit):
+    """The relief asked for, and what smoothing left of it where that differs."""
+    asked, planned = fit.requested_sidecar_mm(), fit.requested_height_mm
+    if abs(asked - planned) < 0.05:
+        return "%.1f mm" % planned
+    return "%.1f mm; %.1f mm once smoothed" % (asked, planned)
+
+
 def _fit(result, hf, profile, opts):
     """The fit of ``hf``, both levers: the relief, and the smoothing of the input as
     validated (``result.validated``) that would form it at full height."""
     lim = profile.shrink_limits
-    return fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
-                      fine_mm=profile.mesh.grid_mm,
-                      fine_iterations=profile.flatten.free_iterations,
-                      resmooth=lambda s: simplify(result.validated, opts["min_prominence_mm"],
-                                                  s)[0])
+    fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
+                     fine_mm=profile.mesh.grid_mm,
+                     fine_iterations=profile.flatten.free_iterations,
+                     resmooth=lambda s: simplify(result.validated, opts["min_prominence_mm"],
+                                                 s)[0])
+    # A sidecar's height_mm sets the input's highest point, before the smoothing that
+    # lowers the peaks: its line must ask for more than the relief that forms.
+    top = float(np.nanmax(result.input_hf.z))
+    if fit.requested_height_mm > 0 and top > 0:
+        fit.sidecar_per_mm = top / fit.requested_height_mm
+    return fit
 
 
 def _free_sheet(result, hf, profile, stage, timing):

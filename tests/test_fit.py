@@ -68,6 +68,24 @@ def test_a_relief_asked_for_is_refused_with_the_line_that_forms(tmp_path):
     assert float(line.split(":")[1]) < 45.0
 
 
+def test_the_sidecar_line_asks_for_the_height_before_smoothing(tmp_path):
+    """The sidecar's height sets the input's top, which smoothing then lowers: written
+    as suggested, the line plans the largest relief that forms, not one smoothing
+    lowers again."""
+    side = "height_mm: 45\nsmooth_mm: 3\n"
+    plan = planner.run(_write(tmp_path, _cone(45.0), side), FREE, tmp_path / "out")
+    fit = plan.fit
+    [p] = [p for p in plan.problems if p["code"] == "fit.too_high"]
+    assert "45.0 mm; %.1f mm once smoothed" % fit.requested_height_mm in p["message"]
+    assert fit.requested_height_mm < 0.95 * 45.0
+    line = fit.sidecar_line()
+    again = planner.run(_write(tmp_path, _cone(45.0), side.replace("height_mm: 45", line)),
+                        FREE, tmp_path / "again")
+    relief = float(np.nanmax(again.hf.z) - np.nanmin(again.hf.z))
+    assert relief == pytest.approx(fit.max_height_mm, rel=0.01)
+    assert plan.report["fit"]["sidecar_height_mm"] == float(line.split(":")[1])
+
+
 def test_a_refused_relief_whose_layout_leaves_the_bed_is_reported_by_its_own_fix(tmp_path):
     """Laid out at the height asked for, the cone's flat sheet is larger than the bed:
     the error a person reads is the relief's, with the sidecar line that forms, not a

@@ -35,6 +35,8 @@ class Fit:
     [(smooth_mm, invalid area fraction, flipped triangles)]; smooth_seconds : their time
     (part of ``seconds``). layout : (mesh, FreeLayout) of the solve on the plan's own
     mesh at ``applied_scale``, when there was one: the plan's layout, not solved again.
+    sidecar_per_mm : the sidecar's ``height_mm`` per mm of the relief planned (the input
+    is smoothed after its height is set, which lowers its peaks).
     """
 
     requested_height_mm: float
@@ -48,6 +50,7 @@ class Fit:
     smooth_tried: list = field(default_factory=list)
     smooth_seconds: float = 0.0
     layout: tuple = None
+    sidecar_per_mm: float = 1.0
 
     def report(self):
         """The report's ``fit`` section."""
@@ -59,11 +62,20 @@ class Fit:
                 "min_smooth_mm": self.min_smooth_mm,
                 "smooth_tried": [[s, round(a, 4), int(f)] for s, a, f in self.smooth_tried],
                 "seconds": round(self.seconds, 2), "smooth_seconds": round(self.smooth_seconds, 2),
-                "layout_reused": self.layout is not None}
+                "layout_reused": self.layout is not None,
+                "sidecar_height_mm": self.sidecar_height_mm()}
+
+    def requested_sidecar_mm(self):
+        """The relief as given, in the sidecar's terms (mm)."""
+        return self.requested_height_mm * self.sidecar_per_mm
+
+    def sidecar_height_mm(self):
+        """The sidecar's ``height_mm`` that gives the largest relief that forms."""
+        return float(np.floor(self.max_height_mm * self.sidecar_per_mm * 10) / 10)
 
     def sidecar_line(self):
         """The sidecar line that asks for the largest relief that forms."""
-        return "height_mm: %.1f" % (np.floor(self.max_height_mm * 10) / 10)
+        return "height_mm: %.1f" % self.sidecar_height_mm()
 
     def smoothing_advice(self):
         """The other way to make it form, keeping the height: ' or ...' or ''."""
