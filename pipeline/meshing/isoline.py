@@ -25,9 +25,15 @@ from pipeline.errors import MeshingError
 from pipeline.geometry import Mesh, SimSheet, signed_areas_2d, unique_edges
 from pipeline.meshing.gradient import Snapper, trace
 from pipeline.meshing.contours import GuideField, Piece, footprint_outline, isoline_pieces, points_at
-from pipeline.meshing.triangulate import (cell_rings, drop_degenerate, ear_clip, fan, main_runs, run_keys,
-                                  run_level, sim_sheet, split_arcs, split_ring, trace_faces,
-                                  zip_strips)
+from pipeline.meshing.triangulate import (cell_rings, drop_degenerate, ear_clip, fan,
+                                          main_runs, run_keys, run_level,
+                                          sim_sheet, split_arcs, split_ring, trace_faces,
+                                          zip_strips)
+
+
+# Points along an isoline no gradient line reached from which a straight bridge down
+# is tried (the nearest that crosses nothing is taken).
+CONNECTOR_TRIES = 16
 
 
 def build_mesh(hf, isoline_step_mm=1.0, gradient_spacing_mm=2.0, l_u_mm=0.25,
@@ -290,14 +296,38 @@ class _Graph:
             self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol, -1)
 
     def _straight_connector(self, pid, snapper, band):
+        """Join an isoline no gradient line reached to the level below by a straight
+        bridge, from the point along it nearest that level among those whose bridge
+        crosses no isoline or bridge (one that crosses makes a cell overlap itself).
+        Where every way down crosses one (a small peak behind a fold of the level
+        below), to the nearest isoline it can reach; from its start where none is clear."""
         pc = self.pieces[pid]
-        pb, tb, _ = snapper.snap(pc.points[:1])
-        if pb[0] < 0:
-            pb, tb, _ = self._outline_snap.snap(pc.points[:1])
-        na = self.add_node(pid, 0.0)
-        nb = self.add_node(int(pb[0]), float(tb[0]))
+        t = np.linspace(0.0, pc.length, CONNECTOR_TRIES, endpoint=not pc.closed)
+        xy0 = pc.at(t)
+        pb, tb, dist = snapper.snap(xy0)
+        if (pb < 0).all():
+            pb, tb, dist = self._outline_snap.snap(xy0)
+        k = self._clearest(xy0, pb, tb, dist, band)
+        if k is None:
+            others = [q for q in range(len(self.pieces)) if q != pid]
+            qb, qt, qd = Snapper(self.pieces, others).snap(xy0)
+            k = self._clearest(xy0, qb, qt, qd, band)
+            if k is not None:
+                pb, tb = qb, qt
+        k = 0 if k is None else k
+        na = self.add_node(pid, float(t[k]))
+        nb = self.add_node(int(pb[k]), float(tb[k]))
         self._add_bridges([(na, nb)], band)
         self.connectors += 1
+
+    def _clearest(self, xy0, pb, tb, dist, band):
+        """Of straight bridges from ``xy0`` to the points ``tb`` on pieces ``pb`` (-1:
+        none), the shortest that crosses nothing: its index, or None."""
+        ok = np.flatnonzero(pb >= 0)
+        if not len(ok):
+            return None
+        clear = ok[self._planar(xy0[ok], points_at(self.pieces, pb[ok], tb[ok]), band)]
+        return int(clear[np.argmin(dist[clear])]) if len(clear) else None
 
     # -- triangulation -----------------------------------------------------
     def triangulate(self):
