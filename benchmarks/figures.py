@@ -134,7 +134,9 @@ def render(groups):
                 "`traces` a + b where the lower and upper layer groups print paths of their own "
                 "(turned apart by the twist). "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
-                "(`flatten.simulation: shell`), started from a bump.", "", *_table(both), ""]
+                "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
+                "tile again at the size the time targets name, with the default method. Load to "
+                "simulation counts the fit (it solves the plan's layout).", "", *_table(both), ""]
         out += _conditions(groups, ("methods",))
     layout = _models(groups.get("layout", {}).get("results", {}))
     if layout:

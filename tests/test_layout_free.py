@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import PipelineError
-from pipeline.geometry import HeightField
+from terrains import random_terrain
 from pipeline.input import shapes
 from pipeline.layout.free import flatten_free, project, svd2, violation
 from pipeline.meshing.grid import build_grid_mesh
@@ -104,35 +104,6 @@ def test_saddles_form_with_a_free_direction(name):
     assert stretch > 0.20, stretch
 
 
-def _random_field(seed):
-    rng = np.random.default_rng(seed)
-    size = rng.uniform(60, 200)
-    px = size / 80
-    n = 81
-    y, x = np.mgrid[0:n, 0:n] * px
-    kind = seed % 5
-    z = np.zeros((n, n))
-    for octave in range(4):                                   # fractal noise
-        k = 2 ** octave
-        coarse = rng.normal(size=(k + 2, k + 2))
-        from scipy.ndimage import zoom
-        z += zoom(coarse, n / (k + 2), order=3)[:n, :n] / k
-    if kind == 1:                                             # ridges
-        z = 1 - np.abs(z)
-    elif kind == 2:                                           # terraces
-        z = np.round(z * 4) / 4
-    elif kind == 3:                                           # plateau
-        z = np.minimum(z, np.percentile(z, 60))
-    elif kind == 4:                                           # a cliff
-        z = z + 2.0 * (x > size / 2)
-    z = (z - z.min()) / max(np.ptp(z), 1e-9) * rng.uniform(5, 40)
-    footprint = rng.random() < 0.5
-    if footprint:
-        r = np.hypot(x - size / 2, y - size / 2)
-        z[r > size / 2] = np.nan
-    return HeightField(z, px, source="random %d" % seed)
-
-
 @pytest.mark.slow
 def test_no_height_field_breaks_the_free_method():
     """Seeded random terrains (noise, ridges, terraces, plateaus, cliffs; 60-200 mm):
@@ -141,7 +112,7 @@ def test_no_height_field_breaks_the_free_method():
     from pipeline.input.validate import validate
     flips, planned = [], 0
     for seed in range(200):
-        hf = _random_field(seed)
+        hf = random_terrain(seed)
         try:
             hf, _ = validate(hf, 5.0)
             hf, _ = simplify(hf, 2.0, 1.0)

@@ -220,7 +220,17 @@ class _Graph:
             nb = self.add_node(int(b), float(tb), xy=q)
             if na != nb:
                 pairs.append((na, nb))
-        self._add_bridges(pairs, band)
+        self._add_bridges(self._still_planar(pairs, band), band)
+
+    def _still_planar(self, pairs, band):
+        """The node pairs whose bridge still crosses nothing: a new end within merging
+        distance of a node reuses that node, which moves the bridge (near where an
+        isoline meets the outline, across it)."""
+        if not pairs:
+            return pairs
+        a = np.array([self.node_xy[na] for na, _ in pairs], float)
+        b = np.array([self.node_xy[nb] for _, nb in pairs], float)
+        return [p for p, keep in zip(pairs, self._planar(a, b, band)) if keep]
 
     def _add_bridges(self, pairs, band):
         """Join node pairs ((na, nb), ...) by bridges of ``band``."""
