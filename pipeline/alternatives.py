@@ -54,7 +54,11 @@ def isoline_would(hf, profile):
         flat = flatten(mesh, s_min=lim.s_min, s_max=lim.s_max, iterations=fp.iterations,
                        weights=fp.weights())
     except PipelineError as err:
-        return {**out, "would_form": False, "error": err.code, "error_message": str(err)}
+        # What and where only: the error's own fix is for a plan of that method, and
+        # the note that quotes it says what to do about this one.
+        where = " (at %s)" % err.where if err.where else ""
+        return {**out, "would_form": False, "error": err.code,
+                "error_message": err.message + where}
     fold = fold_area_fraction(flat.xy, mesh.faces)
     would = fold <= FOLD_LIMIT and flat.invalid_area_fraction <= profile.printable.max_invalid_area
     return {**out, "invalid_area_fraction": float(flat.invalid_area_fraction),

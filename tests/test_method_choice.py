@@ -88,7 +88,8 @@ def test_an_isoline_mesher_that_stops_is_named_in_the_note(tmp_path, monkeypatch
     from pipeline.errors import MeshingError
 
     def stops(*args, **kwargs):
-        raise MeshingError("isolines cross at (3, 4) mm", code="mesh.overlap")
+        raise MeshingError("isolines cross", code="mesh.overlap", where="x 3 mm, y 4 mm",
+                           fix="report it")
 
     monkeypatch.setattr(alternatives, "build_mesh", stops)
     r = plan_file(_dome(tmp_path, "free"), load_profile("generic-0.5mm")).report
@@ -96,4 +97,6 @@ def test_an_isoline_mesher_that_stops_is_named_in_the_note(tmp_path, monkeypatch
                                  "error": "mesh.overlap",
                                  "error_message": r["other_method"]["error_message"]}
     note = [w for w in r["warnings"] if w["code"] == "plan.other_method"][0]
-    assert "mesher stops" in note["message"] and "(3, 4) mm" in note["message"]
+    assert "mesher stops: isolines cross (at x 3 mm, y 4 mm)" in note["message"]
+    # The mesher's own fix is not nested in the note's message: the note has its own.
+    assert "report it" not in note["message"] and "Fix" not in note["message"]
