@@ -34,5 +34,11 @@ def decision(report):
     # What the plan found would print it, so the person deciding sees the other way too.
     other = ["%s: %s." % (w["message"], w["fix"]) for w in warnings
              if w.get("code") in ALTERNATIVES]
-    return ("Outside the profile's printable limits: " + " ".join(said)
-            + (" Instead: " + " ".join(other) if other else ""))
+    return ("Outside the profile's printable limits: " + _sentences(said)
+            + (" Instead: " + _sentences(other) if other else ""))
+
+
+def _sentences(parts):
+    """Sentences one after another: each after the first begins with a capital (the
+    messages begin in lower case, to follow a colon)."""
+    return " ".join(p if k == 0 else p[:1].upper() + p[1:] for k, p in enumerate(parts))

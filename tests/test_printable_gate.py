@@ -100,10 +100,13 @@ def test_the_decision_names_what_would_print_it():
               "warnings": [
                   {"code": "printable.displacement", "message": "the sheet ends 4 % off",
                    "fix": "a smoother relief departs less"},
+                  {"code": "plan.other_method", "message": "the free layout method does "
+                   "not form it either", "fix": "lower or smooth the relief"},
                   {"code": "plan.hold", "message": "smoothed to 6 mm the sheet holds",
                    "fix": "write `smooth_mm: 6` in x.yaml"},
                   {"code": "fit.lowered", "message": "lowered", "fix": "nothing to do"}]}
     said = decision(report)
     assert said.startswith("Outside the profile's printable limits: the sheet ends 4 % off.")
-    assert "Instead: smoothed to 6 mm the sheet holds: write `smooth_mm: 6` in x.yaml." in said
+    assert ("Instead: the free layout method does not form it either: lower or smooth the "
+            "relief. Smoothed to 6 mm the sheet holds: write `smooth_mm: 6` in x.yaml." in said)
     assert "lowered" not in said
