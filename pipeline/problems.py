@@ -110,6 +110,27 @@ def simulation_problems(sim):
                     "estimate, and NAME.preview.png for where the sheet departs"}]
 
 
+# A sheet that misses the shape by more than this share of its relief (on average)
+# does not show its hills and valleys, however small a share of its diameter that is:
+# the reference shapes miss by 1-5 % of their relief, the real tiles by half of it.
+RELIEF_LOST = 0.25
+
+
+def relief_problems(mean_displacement_mm, relief_mm, name):
+    """A warning when the simulated sheet misses the shape by a good part of its relief:
+    the features are narrower than the sheet can bend into."""
+    if not relief_mm > 0 or mean_displacement_mm <= RELIEF_LOST * relief_mm:
+        return []
+    return [{"code": "simulate.relief",
+             "message": "the simulated sheet ends %.1f mm from the shape on average, %.0f %% of "
+                        "its %.1f mm relief: its hills and valleys will hardly show (features "
+                        "narrower than this sheet can bend into do not form)"
+                        % (mean_displacement_mm, 100 * mean_displacement_mm / relief_mm,
+                           relief_mm),
+             "fix": "smooth the input by a few mm (`smooth_mm` in %s.yaml) to print the shape "
+                    "that forms, and compare %s.preview.png" % (name, name)}]
+
+
 def other_method_problems(other, name):
     """A note on a plan that is not printable: whether the other layout method forms it."""
     method = other["method"]
