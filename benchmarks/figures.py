@@ -32,6 +32,7 @@ PLAN_COLUMNS = [
     ("flipped", lambda n, r: r.get("flipped")),
     ("fit scale", lambda n, r: _f(r.get("fit_scale"), 2)),
     ("sim. displacement", lambda n, r: _disp(r)),
+    ("of relief", lambda n, r: _pct(r.get("mean_displacement_of_relief"))),
     ("at rest", lambda n, r: _rest(r)),
     ("arm tips mm", lambda n, r: None if not r.get("arm_tips_mm") else
      "max %.1f" % max(r["arm_tips_mm"])),
@@ -136,7 +137,9 @@ def render(groups):
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
                 "tile again at the size the time targets name, with the default method. Load to "
-                "simulation counts the fit (it solves the plan's layout).", "", *_table(both), ""]
+                "simulation counts the fit (it solves the plan's layout). `of relief`: the mean "
+                "displacement over the relief planned (a quarter or more and the hills and "
+                "valleys hardly show).", "", *_table(both), ""]
         out += _conditions(groups, ("methods",))
     layout = _models(groups.get("layout", {}).get("results", {}))
     if layout:
@@ -224,7 +227,8 @@ def _models(results):
 
 
 def _table(models, brief=False):
-    keep = {"model", "LD mm", "invalid area", "fit scale", "sim. displacement", "traces",
+    keep = {"model", "LD mm", "invalid area", "fit scale", "sim. displacement", "of relief",
+            "traces",
             "coverage", "all stages s", "peak RSS MB", "moves/s"}
     cols = [(h, f) for h, f in PLAN_COLUMNS if not brief or h in keep]
     cells = {name: [f(name, r) for _, f in cols] for name, r in models.items()}

@@ -119,6 +119,8 @@ print(json.dumps({
     "invalid_edge_fraction": round(r["flatten"]["invalid_edge_fraction"], 4),
     "mean_displacement_mm": round(r["simulation"]["mean_displacement_mm"], 3),
     "mean_displacement_pct_of_diameter": round(100 * r["simulation"]["mean_displacement_fraction"], 3),
+    "relief_mm": r["simulation"].get("relief_mm"),
+    "mean_displacement_of_relief": r["simulation"].get("mean_displacement_of_relief"),
     "simulation_converged": r["simulation"]["converged"],
     "simulation_iterations": r["simulation"]["iterations"],
     "coarse_iterations": r["simulation"]["coarse_iterations"],
