@@ -197,6 +197,49 @@ class _Graph:
             for pid in orphans:
                 if not self.piece_n[pid]:
                     self._straight_connector(pid, snappers[li], li)
+        self._join_islands(snappers)
+
+    def _join_islands(self, snappers, rounds=4):
+        """Bridge down every group of isolines joined to one another but not to the
+        outline (a closed isoline at the outline's own level, and what rises from it,
+        which no band's gradient lines leave downward): the graph's cells around such a
+        group were triangulated twice, once with it and once without. Each group's
+        lowest isoline is bridged to the level below where a straight bridge crosses
+        nothing, else to the nearest isoline outside the group it can reach."""
+        for _ in range(rounds):
+            groups = self._islands()
+            if not groups:
+                return
+            for members in groups:
+                pid = min(members, key=lambda q: self.level_index[q])
+                li = int(self.level_index[pid])
+                below = snappers[li - 1] if li > 0 else self._outline_snap
+                outside = [q for q in range(len(self.pieces)) if q not in members]
+                self._straight_connector(pid, below, li - 1 if li > 0 else -1,
+                                         others=outside)
+
+    def _islands(self):
+        """Groups of isolines with nodes that no bridge or shared node joins to the
+        outline: list of sets of piece ids."""
+        parent = list(range(len(self.pieces)))
+
+        def root(x):
+            while parent[x] != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        owner = {}
+        for pid, nodes in enumerate(self.piece_n):
+            for nd in nodes:
+                parent[root(pid)] = root(owner.setdefault(nd, pid))
+        for a, b in self.bridges:
+            parent[root(owner[a])] = root(owner[b])
+        groups = {}
+        for pid, nodes in enumerate(self.piece_n):
+            if nodes and root(pid) != root(0):
+                groups.setdefault(root(pid), set()).add(pid)
+        return list(groups.values())
 
     def _connect(self, src, t_src, level, snapper, tol, band):
         if not src:
@@ -305,12 +348,13 @@ class _Graph:
             sel = np.nonzero(li == k)[0]
             self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol, -1)
 
-    def _straight_connector(self, pid, snapper, band):
+    def _straight_connector(self, pid, snapper, band, others=None):
         """Join an isoline no gradient line reached to the level below by a straight
         bridge, from the point along it nearest that level among those whose bridge
         crosses no isoline or bridge (one that crosses makes a cell overlap itself).
         Where every way down crosses one (a small peak behind a fold of the level
-        below), to the nearest isoline it can reach; from its start where none is clear."""
+        below), to the nearest isoline it can reach (of ``others``: default, all but
+        itself); from its start where none is clear."""
         pc = self.pieces[pid]
         t = np.linspace(0.0, pc.length, CONNECTOR_TRIES, endpoint=not pc.closed)
         xy0 = pc.at(t)
@@ -319,7 +363,8 @@ class _Graph:
             pb, tb, dist = self._outline_snap.snap(xy0)
         k = self._clearest(xy0, pb, tb, dist, band)
         if k is None:
-            others = [q for q in range(len(self.pieces)) if q != pid]
+            if others is None:
+                others = [q for q in range(len(self.pieces)) if q != pid]
             qb, qt, qd = Snapper(self.pieces, others).snap(xy0)
             k = self._clearest(xy0, qb, qt, qd, band)
             if k is not None:
