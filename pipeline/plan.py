@@ -140,10 +140,10 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
         _isoline_sheet(result, hf, profile, path, stage, timing, opts)
     result.inverted = inverted.settled_inverted(result.sim, result.mesh)
     result.problems += inverted.problems(result.inverted, path.stem)
-    result.problems += relief_problems(result.sim.mean_displacement_mm, _relief(result.hf),
-                                       path.stem)
     timing["total"] = time.perf_counter() - t_all
     result.report = _report(path, profile, result, vrep, srep, timing)
+    result.problems += relief_problems(result.sim.mean_displacement_mm,
+                                       result.report["simulation"]["relief_mm"], path.stem)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
     if not result.printable:
@@ -349,11 +349,6 @@ def _free_sheet(result, hf, profile, stage, timing):
     timing["toolpath"] = time.perf_counter() - t
 
 
-def _relief(hf):
-    """The planned relief (mm): the height field's highest point over its lowest."""
-    return float(np.nanmax(hf.z) - np.nanmin(hf.z))
-
-
 def _on_bed(xy, profile):
     """Bed coordinates: the layout's bounding box centred on the bed, so the tool paths,
     the G-code and the screen-print marks all share one frame."""
@@ -374,6 +369,7 @@ def _json_ready(d):
 def _report(path, profile, p, vrep, srep, timing):
     hf, mesh, flat, sim = p.hf, p.mesh, p.flat, p.sim
     extent = np.ptp(flat.xy, axis=0)
+    relief = float(np.nanmax(hf.z) - np.nanmin(hf.z))
     return {
         "input": path.name,
         "profile": profile.name,
@@ -409,9 +405,8 @@ def _report(path, profile, p, vrep, srep, timing):
                         fold_area_fraction=p.fold_fraction),
         "simulation": dict(sim.report(), mean_displacement_fraction=float(
             sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
-            relief_mm=_relief(p.hf),
-            mean_displacement_of_relief=float(sim.mean_displacement_mm / max(_relief(p.hf),
-                                                                             1e-9)),
+            relief_mm=relief,
+            mean_displacement_of_relief=float(sim.mean_displacement_mm / max(relief, 1e-9)),
             **({"inverted": inverted.report(p.inverted)} if p.inverted else {})),
         "toolpath": _json_ready(dict(p.toolpaths.info, **(
             {"upper": p.upper_toolpaths.info} if p.upper_toolpaths is not None else {}))),
