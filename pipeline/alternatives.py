@@ -17,7 +17,7 @@ from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
-from pipeline.problems import FOLD_LIMIT, fold_area_fraction
+from pipeline.problems import FOLD_LIMIT, RELIEF_LOST, fold_area_fraction
 from pipeline.simulation.programmed import simulate_free
 
 # The free method's quick looks: a coarser grid and fewer iterations than its plan (a
@@ -68,9 +68,11 @@ def isoline_would(hf, profile):
 
 def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
     """The least smoothing at which the simulated free sheet ends within the profile's
-    displacement limit: the report's ``hold`` section (``smooth_mm``, None where none up
-    to the cap holds; ``tried``: [smooth_mm, displacement share, relief scale, relief mm]
-    per look; ``failed``: [smooth_mm, error code] where a look could not plan it).
+    displacement limit and shows its relief (misses it by at most ``RELIEF_LOST`` of it):
+    the report's ``hold`` section (``smooth_mm``, None where none up to the cap holds;
+    ``tried``: [smooth_mm, displacement share, relief scale, relief mm, displacement
+    over relief] per look; ``failed``: [smooth_mm, error code] where a look could not
+    plan it).
 
     A thin sheet cannot bend into features much narrower than it is stiff (the real
     tiles' ridges, a few mm across, come out as one smooth hill); smoothed, the same
@@ -111,9 +113,10 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
         _, sim = simulate_free(hf, mesh, flat, profile, twist=False)
         share = sim.mean_displacement_mm / diameter_mm
         relief = float(np.nanmax(hf.z) - np.nanmin(hf.z))
+        lost = sim.mean_displacement_mm / max(relief, 1e-9)
         tried.append([float(smooth), round(float(share), 5), round(float(scale), 4),
-                      round(relief, 2)])
-        return flat.flipped == 0 and share <= limit
+                      round(relief, 2), round(float(lost), 4)])
+        return flat.flipped == 0 and share <= limit and lost <= RELIEF_LOST
 
     cap = HOLD_CAP * size
     found = least_smoothing(holds, opts["smooth_mm"], cap_mm=cap)

@@ -158,14 +158,18 @@ def hold_problems(hold, smooth_mm, name):
     if hold["smooth_mm"] is None:
         return [{"code": "plan.hold",
                  "message": "smoothed as much as %g mm the simulated sheet still ends %.1f %% "
-                            "of its diameter from the shape (the profile allows %.1f %%)"
-                            % (worst[0], 100 * worst[1], 100 * hold["limit"]),
+                            "of its diameter and %.0f %% of its relief from the shape (it "
+                            "holds within %.1f %% and %.0f %%)"
+                            % (worst[0], 100 * worst[1], 100 * worst[4], 100 * hold["limit"],
+                               100 * RELIEF_LOST),
                  "fix": "lower the relief (height_mm in %s.yaml)" % name}]
     got = next(t for t in hold["tried"] if t[0] == hold["smooth_mm"])
     return [{"code": "plan.hold",
              "message": "smoothed to %g mm instead of %g mm the sheet holds the shape: it "
-                        "ends %.1f %% of its diameter from it (simulated on a %g mm mesh, "
-                        "%.1f mm high); features narrower than that do not form in this sheet"
-                        % (hold["smooth_mm"], smooth_mm, 100 * got[1], hold["grid_mm"], got[3]),
+                        "ends %.1f %% of its diameter and %.0f %% of its relief from it "
+                        "(simulated on a %g mm mesh, %.1f mm high); features narrower than "
+                        "that do not form in this sheet"
+                        % (hold["smooth_mm"], smooth_mm, 100 * got[1], 100 * got[4],
+                           hold["grid_mm"], got[3]),
              "fix": "write `smooth_mm: %g` in %s.yaml to print the smoothed shape"
                     % (hold["smooth_mm"], name)}]

@@ -70,3 +70,22 @@ def test_a_look_that_cannot_plan_leaves_the_plan_standing(tmp_path, monkeypatch)
     assert r["hold"]["failed"] and all(code == "mesh.empty" for _, code in r["hold"]["failed"])
     assert r["other_method"]["error"] == "mesh.empty"
     assert "plan.hold" not in [w["code"] for w in r["warnings"]]
+
+
+def test_a_look_whose_relief_does_not_show_does_not_hold(monkeypatch):
+    """Within the profile's share of the diameter is not enough: a look holds only where
+    the sheet also misses by at most a quarter of its relief."""
+    from pipeline import alternatives
+    from pipeline.input.validate import validate
+    prof = load_profile("generic-0.5mm")
+    lenient = dataclasses.replace(prof, printable=dataclasses.replace(
+        prof.printable, max_mean_displacement=1.0))
+    hf, _ = validate(shapes.starfish_ridged(diameter_mm=60.0, height_mm=12.0), 2.0)
+    opts = {"min_prominence_mm": 2.0, "smooth_mm": 1.0}
+    held = alternatives.smoothing_that_holds(hf, lenient, opts, 60.0, fit_height_too=False)
+    assert held["smooth_mm"] is not None
+    assert all(t[4] <= alternatives.RELIEF_LOST for t in held["tried"]
+               if t[0] == held["smooth_mm"])
+    monkeypatch.setattr(alternatives, "RELIEF_LOST", 1e-6)
+    none = alternatives.smoothing_that_holds(hf, lenient, opts, 60.0, fit_height_too=False)
+    assert none["smooth_mm"] is None and all(t[4] > 1e-6 for t in none["tried"])
