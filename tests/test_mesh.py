@@ -242,7 +242,12 @@ def test_no_height_field_makes_the_isoline_mesher_overlap():
     never ``mesh.overlap`` (seed 109 did: a bridge whose end was merged into a node
     beside it crossed an isoline where it meets the outline), and meshes each into one
     piece that covers the footprint once (seeds 82 and 83 left groups of isolines no
-    bridge joined to the outline, meshed a second time over the rest)."""
+    bridge joined to the outline, meshed a second time over the rest) and is a disk,
+    as the footprints (squares and disks) are: Euler characteristic 1. Seeds 36 and
+    147 each left a cell of 1-2 mm^2 untriangulated, a hole the area alone (0.07 %
+    short, as every mesh is of the pixel count) did not show: an isoline nearly
+    tangent to the outline crossed its resampled chords, and a connector that found
+    no way down, bridged to the level above, was crossed by a gradient line there."""
     from pipeline.errors import PipelineError
     from pipeline.input.simplify import simplify
     from pipeline.input.validate import validate
@@ -250,7 +255,7 @@ def test_no_height_field_makes_the_isoline_mesher_overlap():
     from pipeline.profiles.profile import load_profile
     from terrains import random_terrain
     mp = load_profile("generic-0.5mm").mesh
-    overlaps, twice, meshed = [], [], 0
+    overlaps, twice, holed, meshed = [], [], [], 0
     for seed in range(200):
         try:
             hf, _ = validate(random_terrain(seed), 5.0)
@@ -266,5 +271,8 @@ def test_no_height_field_makes_the_isoline_mesher_overlap():
         if _pieces(m.faces) != 1 or abs(area / (np.isfinite(hf.z).sum() * hf.pixel_mm ** 2)
                                         - 1) > 0.005:
             twice.append(seed)
-    assert not overlaps and not twice, (overlaps, twice)
+        edges, _ = boundary_loops(m.faces)
+        if len(m.vertices) - len(edges) + len(m.faces) != 1:
+            holed.append(seed)
+    assert not overlaps and not twice and not holed, (overlaps, twice, holed)
     assert meshed >= 150, meshed

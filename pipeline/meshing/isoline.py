@@ -26,7 +26,7 @@ from pipeline.geometry import Mesh, SimSheet, signed_areas_2d, unique_edges
 from pipeline.meshing.gradient import Snapper, trace
 from pipeline.meshing.contours import GuideField, Piece, footprint_outline, isoline_pieces, points_at
 from pipeline.meshing.triangulate import (cell_rings, drop_degenerate, ear_clip, fan,
-                                          main_runs, run_keys, run_level,
+                                          main_runs, pull_inside, run_keys, run_level,
                                           sim_sheet, split_arcs, split_ring, trace_faces,
                                           zip_strips)
 
@@ -175,7 +175,7 @@ class _Graph:
         segs = np.concatenate([np.stack([p._path[:-1], p._path[1:]], axis=1)
                                for p in self.pieces])
         self._piece_tree = shapely.STRtree(shapely.linestrings(segs))
-        self._bridge_lines = {}   # band (lower level index, or -1 for the outline) -> lines
+        self._bridge_lines = []   # every bridge so far, shrunk (see _planar)
         tol = 1.5 * self.field.pixel_mm
         if not self.level_outline:
             self._trace_from_sloped_outline(snappers, tol)
@@ -185,7 +185,7 @@ class _Graph:
                 for t in self._seeds(pid):
                     src.append(pid)
                     t_src.append(t)
-            self._connect(src, t_src, self.levels[li + 1], snappers[li + 1], tol, li)
+            self._connect(src, t_src, self.levels[li + 1], snappers[li + 1], tol)
             # Isolines no line reached (a new peak past a saddle): trace down from them.
             orphans = [pid for pid in by_level[li + 1] if not self.piece_n[pid]]
             src, t_src = [], []
@@ -193,10 +193,10 @@ class _Graph:
                 for t in self._seeds(pid):
                     src.append(pid)
                     t_src.append(t)
-            self._connect(src, t_src, self.levels[li], snappers[li], tol, li)
+            self._connect(src, t_src, self.levels[li], snappers[li], tol)
             for pid in orphans:
                 if not self.piece_n[pid]:
-                    self._straight_connector(pid, snappers[li], li)
+                    self._straight_connector(pid, snappers[li])
         self._join_islands(snappers)
 
     def _join_islands(self, snappers, rounds=4):
@@ -215,8 +215,7 @@ class _Graph:
                 li = int(self.level_index[pid])
                 below = snappers[li - 1] if li > 0 else self._outline_snap
                 outside = [q for q in range(len(self.pieces)) if q not in members]
-                self._straight_connector(pid, below, li - 1 if li > 0 else -1,
-                                         others=outside)
+                self._straight_connector(pid, below, others=outside)
 
     def _islands(self):
         """Groups of isolines with nodes that no bridge or shared node joins to the
@@ -241,7 +240,7 @@ class _Graph:
                 groups.setdefault(root(pid), set()).add(pid)
         return list(groups.values())
 
-    def _connect(self, src, t_src, level, snapper, tol, band):
+    def _connect(self, src, t_src, level, snapper, tol):
         if not src:
             return
         src = np.asarray(src)
@@ -254,7 +253,7 @@ class _Graph:
         keep = self._non_crossing(src, t_src, pid1, t1)
         src, t_src, pid1, t1, xy0 = src[keep], t_src[keep], pid1[keep], t1[keep], xy0[keep]
         xy1 = points_at(self.pieces, pid1, t1)
-        keep = self._planar(xy0, xy1, band)
+        keep = self._planar(xy0, xy1)
         pairs = []
         # The end points are known already: a new node needs no second look-up on its piece.
         for a, ta, b, tb, p, q in zip(src[keep], t_src[keep], pid1[keep], t1[keep],
@@ -263,9 +262,9 @@ class _Graph:
             nb = self.add_node(int(b), float(tb), xy=q)
             if na != nb:
                 pairs.append((na, nb))
-        self._add_bridges(self._still_planar(pairs, band), band)
+        self._add_bridges(self._still_planar(pairs))
 
-    def _still_planar(self, pairs, band):
+    def _still_planar(self, pairs):
         """The node pairs whose bridge still crosses nothing: a new end within merging
         distance of a node reuses that node, which moves the bridge (near where an
         isoline meets the outline, across it)."""
@@ -273,18 +272,18 @@ class _Graph:
             return pairs
         a = np.array([self.node_xy[na] for na, _ in pairs], float)
         b = np.array([self.node_xy[nb] for _, nb in pairs], float)
-        return [p for p, keep in zip(pairs, self._planar(a, b, band)) if keep]
+        return [p for p, keep in zip(pairs, self._planar(a, b)) if keep]
 
-    def _add_bridges(self, pairs, band):
-        """Join node pairs ((na, nb), ...) by bridges of ``band``."""
+    def _add_bridges(self, pairs):
+        """Join node pairs ((na, nb), ...) by bridges."""
         if not pairs:
             return
         self.bridges.extend(pairs)
         a = np.array([self.node_xy[na] for na, _ in pairs], float)
         b = np.array([self.node_xy[nb] for _, nb in pairs], float)
-        self._bridge_lines.setdefault(band, []).extend(_shrunk_many(a, b))
+        self._bridge_lines.extend(_shrunk_many(a, b))
 
-    def _planar(self, xy0, xy1, band):
+    def _planar(self, xy0, xy1):
         """Keep the straight bridges that cross no isoline, no earlier bridge and no
         shorter bridge of this batch: the graph must stay planar for its cells."""
         if len(xy0) == 0:
@@ -293,11 +292,13 @@ class _Graph:
         ok = np.ones(len(lines), bool)
         hit, _ = self._piece_tree.query(lines, predicate="intersects")
         ok[hit] = False
-        # A band's bridges can only meet bridges of the same band or from the outline.
-        near = self._bridge_lines.get(band, []) + \
-            (self._bridge_lines.get(-1, []) if band != -1 else [])
-        if near:
-            hit, _ = shapely.STRtree(near).query(lines, predicate="intersects")
+        # Against every bridge, not only those of the band being traced: a connector
+        # that found no way down joins whatever isoline it can reach, in another band
+        # (seed 147 of the random terrains: one to the level above, crossed later by a
+        # gradient line of that band), and a group's bridge to the outline can pass
+        # through any band.
+        if self._bridge_lines:
+            hit, _ = shapely.STRtree(self._bridge_lines).query(lines, predicate="intersects")
             ok[hit] = False
         cand = np.nonzero(ok)[0]
         if len(cand) > 1:
@@ -346,9 +347,9 @@ class _Graph:
         li = np.searchsorted(self.levels, g + 0.1 * self.dh)
         for k in np.unique(li[li < len(self.levels)]):
             sel = np.nonzero(li == k)[0]
-            self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol, -1)
+            self._connect([0] * len(sel), t[sel], self.levels[k], snappers[k], tol)
 
-    def _straight_connector(self, pid, snapper, band, others=None):
+    def _straight_connector(self, pid, snapper, others=None):
         """Join an isoline no gradient line reached to the level below by a straight
         bridge, from the point along it nearest that level among those whose bridge
         crosses no isoline or bridge (one that crosses makes a cell overlap itself).
@@ -361,27 +362,27 @@ class _Graph:
         pb, tb, dist = snapper.snap(xy0)
         if (pb < 0).all():
             pb, tb, dist = self._outline_snap.snap(xy0)
-        k = self._clearest(xy0, pb, tb, dist, band)
+        k = self._clearest(xy0, pb, tb, dist)
         if k is None:
             if others is None:
                 others = [q for q in range(len(self.pieces)) if q != pid]
             qb, qt, qd = Snapper(self.pieces, others).snap(xy0)
-            k = self._clearest(xy0, qb, qt, qd, band)
+            k = self._clearest(xy0, qb, qt, qd)
             if k is not None:
                 pb, tb = qb, qt
         k = 0 if k is None else k
         na = self.add_node(pid, float(t[k]))
         nb = self.add_node(int(pb[k]), float(tb[k]))
-        self._add_bridges([(na, nb)], band)
+        self._add_bridges([(na, nb)])
         self.connectors += 1
 
-    def _clearest(self, xy0, pb, tb, dist, band):
+    def _clearest(self, xy0, pb, tb, dist):
         """Of straight bridges from ``xy0`` to the points ``tb`` on pieces ``pb`` (-1:
         none), the shortest that crosses nothing: its index, or None."""
         ok = np.flatnonzero(pb >= 0)
         if not len(ok):
             return None
-        clear = ok[self._planar(xy0[ok], points_at(self.pieces, pb[ok], tb[ok]), band)]
+        clear = ok[self._planar(xy0[ok], points_at(self.pieces, pb[ok], tb[ok]))]
         return int(clear[np.argmin(dist[clear])]) if len(clear) else None
 
     # -- triangulation -----------------------------------------------------
@@ -393,6 +394,7 @@ class _Graph:
         he = []            # (from node, to node, piece, vertex list) per half-edge
         printing = []      # (k, 3) blocks of (a, b, isoline id)
         self.arcs = []     # (vertex chain from node to node, length mm) along pieces
+        outline = None     # the outline's vertex ids, counter-clockwise
         iso_id = {}
         for pid, pc in enumerate(self.pieces):
             if not self.piece_n[pid]:
@@ -410,6 +412,8 @@ class _Graph:
             n_verts += len(t_in)
             verts.append(pc.at(t_in))
             level_blocks.append(np.full(len(t_in), pc.level))
+            if pc.kind == "outline":
+                outline = seq[:-1]
             if is_print:
                 node_level[ns] = pc.level
                 printing.append(np.column_stack([seq[:-1], seq[1:],
@@ -424,6 +428,10 @@ class _Graph:
             he.append((a, b, -1, [a]))
             he.append((b, a, -1, [b]))
         xy = np.concatenate(verts)
+        if outline is not None:
+            # The outline's new chords cut its bends: an isoline nearly tangent to it
+            # may now lie just outside.
+            xy = pull_inside(xy, outline, self.polygon.exterior)
         faces_he = trace_faces(xy, he)
         printing = np.concatenate(printing) if printing else np.zeros((0, 3), np.int64)
         return self._assemble(xy, np.concatenate([node_level] + level_blocks), he, faces_he,
