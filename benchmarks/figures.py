@@ -38,8 +38,7 @@ PLAN_COLUMNS = [
      "max %.1f" % max(r["arm_tips_mm"])),
     ("holds smoothed to", lambda n, r: None if r.get("hold_smooth_mm") is None else
      "%g mm: %s" % (r["hold_smooth_mm"], _pct(r.get("hold_displacement")))),
-    ("traces", lambda n, r: r.get("traces") if not r.get("upper_traces") else
-     "%d + %d" % (r["traces"], r["upper_traces"])),
+    ("traces", lambda n, r: _traces(r)),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
     ("overlap", lambda n, r: _pct(r.get("overlap"))),
@@ -133,7 +132,8 @@ def render(groups):
                 "fitted to the material (`hostd plan --fit`, also where a sidecar asks for a "
                 "height), started flat with the curvature programmed through the layers; "
                 "`traces` a + b where the lower and upper layer groups print paths of their own "
-                "(turned apart by the twist). "
+                "(turned apart by the twist), a + b across where the first and last layer print "
+                "paths across the others' (the curvature across them). "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
                 "tile again at the size the time targets name, with the default method. Load to "
@@ -262,6 +262,15 @@ def _k(v):
 
 def _pct(v):
     return None if v is None else "%.1f %%" % (100 * v)
+
+
+def _traces(r):
+    """Traces per layer of each set of paths the plan prints."""
+    if r.get("across_traces"):
+        return "%d + %d across" % (r["traces"], r["across_traces"])
+    if r.get("upper_traces"):
+        return "%d + %d" % (r["traces"], r["upper_traces"])
+    return r.get("traces")
 
 
 def _disp(r):

@@ -75,13 +75,10 @@ def write_outputs(st, plan):
     out = output_names(name, color=plan.hf.color is not None)
     lim = prof.shrink_limits
     timing = plan.report["timing_s"]
-    tp, up = plan.toolpaths, getattr(plan, "upper_toolpaths", None)
+    tp = plan.toolpaths
     t = time.perf_counter()
     try:
-        deltas = _segment_deltas(plan, tp.traces, *([up.traces] if up else []))
-        stats = gcode.write_gcode(
-            tp.traces, tp.sigma, prof, st.path(out["gcode"]), name=name, center=False,
-            deltas=deltas[0], upper=(up.traces, up.sigma, deltas[1]) if up else None)
+        stats = _write_gcode(plan, st.path(out["gcode"]))
     except PlanError as e:
         raise _blocked_first(plan, e) from e
     if plan.blocked:
@@ -183,6 +180,10 @@ def _toolpath_title(plan):
     """The tool-path picture draws one layer's paths: with crossed layer groups, the lower
     group's, and the title says what the upper layers print instead."""
     up = getattr(plan, "upper_toolpaths", None)
+    across = getattr(plan, "across_toolpaths", None)
+    if across is not None:
+        return ("%s: inner layers' tool paths, shrink per segment (the first and last layer "
+                "print %d traces of their own, across them)" % (plan.name, len(across.traces)))
     if up is None:
         return "%s: tool paths, shrink per segment" % plan.name
     return ("%s: lower layers' tool paths, shrink per segment (the upper layers print %d traces "
@@ -190,13 +191,28 @@ def _toolpath_title(plan):
             % (plan.name, len(up.traces), plan.curvature.crossing_deg()["max"]))
 
 
-def _segment_deltas(plan, *trace_sets):
-    """The bilayer of each segment of each set of traces (the program of the triangle it
-    crosses, found by its midpoint's nearest triangle centre): one list per set, each
-    None without a program."""
+def _write_gcode(plan, path):
+    """Write the plan's G-code to ``path``: its paths with their bilayer, the upper layer
+    group's own paths, or the outer layers' paths across them. Returns the stats."""
+    tp, up = plan.toolpaths, getattr(plan, "upper_toolpaths", None)
+    across = getattr(plan, "across_toolpaths", None)
+    if across is not None:
+        table = plan.curvature.laminate.layer_sigma
+        inner, outer = _per_segment(plan, table, tp.traces, across.traces)
+        return gcode.write_laminate_gcode((tp.traces, inner), (across.traces, outer),
+                                          plan.profile, path, name=plan.name, center=False)
     prog = getattr(plan, "curvature", None)
-    if prog is None:
-        return [None] * len(trace_sets)
+    deltas = (_per_segment(plan, prog.delta_sigma, tp.traces, *([up.traces] if up else []))
+              if prog is not None else [None, None])
+    return gcode.write_gcode(
+        tp.traces, tp.sigma, plan.profile, path, name=plan.name, center=False,
+        deltas=deltas[0], upper=(up.traces, up.sigma, deltas[1]) if up else None)
+
+
+def _per_segment(plan, per_triangle, *trace_sets):
+    """``per_triangle`` ((m, ...) a value of each triangle) at each segment of each set
+    of traces, from the triangle it crosses (its midpoint's nearest triangle centre):
+    one list of (k_i - 1, ...) arrays per set."""
     from scipy.spatial import cKDTree
     tree = cKDTree(plan.xy_bed[plan.mesh.faces].mean(axis=1))
     out = []
@@ -204,7 +220,7 @@ def _segment_deltas(plan, *trace_sets):
         found = []
         for p in traces:
             p = np.asarray(p, dtype=float)
-            found.append(prog.delta_sigma[tree.query((p[1:] + p[:-1]) / 2)[1]])
+            found.append(per_triangle[tree.query((p[1:] + p[:-1]) / 2)[1]])
         out.append(found)
     return out
 

@@ -108,9 +108,10 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
         mesh = build_grid_mesh(hf, grid)
         flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
         flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
-        # Paths along d only: the plan turns its layer groups apart only where that rests
-        # closer, so the answer errs on the safe side, at one simulation per look.
-        _, sim = simulate_free(hf, mesh, flat, profile, twist=False)
+        # Paths along d only: the plan turns its layer groups apart or prints its outer
+        # layers across only where that rests closer, so the answer errs on the safe
+        # side, at one simulation per look.
+        _, sim = simulate_free(hf, mesh, flat, profile, twist=False, across=False)
         share = sim.mean_displacement_mm / diameter_mm
         relief = float(np.nanmax(hf.z) - np.nanmin(hf.z))
         lost = sim.mean_displacement_mm / max(relief, 1e-9)

@@ -53,6 +53,7 @@ class Plan:
     xy_bed: object = None
     toolpaths: object = None
     upper_toolpaths: object = None
+    across_toolpaths: object = None
     simplified: dict = field(default_factory=dict)
     curvature: object = None
     fit: object = None
@@ -339,13 +340,18 @@ def _free_sheet(result, hf, profile, stage, timing):
     sigma = result.curvature.sigma
     # Crossed layer groups print their own stripes; the lower group's are the plan's
     # paths (pictures, screen print), the upper group's are printed above them.
-    def stripes(direction):
-        return stripe_toolpaths(result.xy_bed, mesh.faces, direction, sigma,
+    def stripes(direction, shrink=sigma):
+        return stripe_toolpaths(result.xy_bed, mesh.faces, direction, shrink,
                                 profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
                                 merge_sigma=tp.merge_sigma, level=mesh.vertex_level)
     lower, upper = result.curvature.group_directions(flat.direction)
     result.toolpaths = stripes(lower)
     result.upper_toolpaths = stripes(upper) if result.curvature.crossed else None
+    lam = result.curvature.laminate
+    if lam is not None:
+        # The outer layers' paths run across d, a quarter turn from the plan's.
+        across = np.stack([-flat.direction[:, 1], flat.direction[:, 0]], axis=1)
+        result.across_toolpaths = stripes(across, lam.layer_sigma[:, lam.across].max(axis=1))
     timing["toolpath"] = time.perf_counter() - t
 
 
@@ -408,8 +414,10 @@ def _report(path, profile, p, vrep, srep, timing):
             relief_mm=relief,
             mean_displacement_of_relief=float(sim.mean_displacement_mm / max(relief, 1e-9)),
             **({"inverted": inverted.report(p.inverted)} if p.inverted else {})),
-        "toolpath": _json_ready(dict(p.toolpaths.info, **(
-            {"upper": p.upper_toolpaths.info} if p.upper_toolpaths is not None else {}))),
+        "toolpath": _json_ready(dict(p.toolpaths.info, **{
+            key: paths.info for key, paths in (("upper", p.upper_toolpaths),
+                                               ("across", p.across_toolpaths))
+            if paths is not None})),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
         **({"curvature": dict(p.curvature.report(), bilayer_c=profile.curvature.bilayer_c,
                               bilayer_c_status=profile.curvature.status)}

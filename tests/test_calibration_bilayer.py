@@ -102,8 +102,9 @@ def test_shipped_profiles_carry_an_uncalibrated_constant_and_the_plan_uses_the_p
         (Path(tmp) / "d.yaml").write_text("pixel_mm: %r\nmethod: free\n" % hf.pixel_mm)
         plans = {}
         for c in (1.5, 3.0):
+            # Along d only: whether the outer layers print across is the sheet's choice.
             prof = dataclasses.replace(PROFILE, curvature=dataclasses.replace(
-                PROFILE.curvature, bilayer_c=c))
+                PROFILE.curvature, bilayer_c=c, across_layers="off"))
             plans[c] = planner.run(Path(tmp) / "d.npy", prof, Path(tmp) / ("o%g" % c))
     # Twice the constant: half the thickness difference for the same curvature.
     d1, d3 = (np.abs(plans[c].curvature.delta_sigma).max() for c in (1.5, 3.0))

@@ -259,7 +259,8 @@ def test_turning_the_layer_groups_apart_brings_the_elongated_peak_within_one_per
     profile, mesh, flat = plan_layout(hf)
     rest = {}
     for turn in (profile.curvature.turn_max_deg, 0.0):
-        prog, sim = simulate_free(hf, mesh, flat, with_curvature(profile, turn_max_deg=turn))
+        prog, sim = simulate_free(hf, mesh, flat, with_curvature(profile, turn_max_deg=turn),
+                                  across=False)
         assert prog.crossed == (turn > 0)
         rest[turn] = sim.mean_displacement_mm
     twisted, plain = rest[profile.curvature.turn_max_deg], rest[0.0]
@@ -311,8 +312,8 @@ def test_an_odd_layer_count_prints_no_crossed_groups():
     import dataclasses
     from pipeline.simulation.programmed import simulate_free
     profile, hf, mesh, flat = small_saddle()
-    six, _ = simulate_free(hf, mesh, flat, profile)
-    five, _ = simulate_free(hf, mesh, flat, dataclasses.replace(profile, layers=5))
+    six, _ = simulate_free(hf, mesh, flat, profile, across=False)
+    five, _ = simulate_free(hf, mesh, flat, dataclasses.replace(profile, layers=5), across=False)
     assert profile.layers == 6 and six.twist is not None and six.crossed
     assert five.twist is None and not five.crossed
 
@@ -323,7 +324,7 @@ def test_the_twist_added_to_the_settled_sheet_rests_where_a_flat_start_with_it_d
     at the same distance from the target (within 2 %)."""
     from pipeline.simulation.programmed import simulate_free
     profile, hf, mesh, flat = small_saddle()
-    prog, sim = simulate_free(hf, mesh, flat, profile)
+    prog, sim = simulate_free(hf, mesh, flat, profile, across=False)
     assert prog.twist["kept"] and prog.twist["crossed_at_rest"]
     # The same program from a flat start.
     sigma = prog.sigma

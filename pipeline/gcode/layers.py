@@ -79,7 +79,8 @@ class Group:
     labels : one comment per trace, or None; q : (n, 2) int um, the layer's points;
     starts : (t + 1,) int, trace i owns ``q[starts[i]:starts[i + 1]]``; th_mm : (s, K)
     each segment's thickness; timing : its layers' estimate
-    (:class:`pipeline.gcode.summary.Timing`)."""
+    (:class:`pipeline.gcode.summary.Timing`); role : ``lower`` (the plan's paths),
+    ``upper`` (the upper layer group's own) or ``across`` (the outer layers')."""
 
     mv: dict
     text: MoveText
@@ -90,6 +91,7 @@ class Group:
     starts: np.ndarray = None
     th_mm: np.ndarray = None
     timing: object = None
+    role: str = "lower"
 
     @property
     def layers(self):

@@ -80,11 +80,17 @@ def summary(groups, settings, clamped_segments):
                                                          / settings.print_mm_s, 1e-9)
                                  for g in groups), 1),
     }
-    if len(groups) > 1:
-        stats["upper_traces"] = len(groups[1].starts) - 1
+    for role in ("upper", "across"):
+        g = next((g for g in groups if g.role == role), None)
+        if g is not None:
+            stats[role + "_traces"] = len(g.starts) - 1
     if settings.arc_tolerance_mm > 0:
         stats["arcs"] = sum(int((g.mv["kind"] != 1).sum()) * g.layers for g in groups)
     return stats
+
+
+_ROLE_NAMES = {("lower", "upper"): "lower / upper layer group",
+               ("lower", "across"): "inner layers / outer layers, across"}
 
 
 def filament_g(filament_mm, settings):
@@ -105,7 +111,9 @@ def header_lines(groups, settings, name, extra=()):
     f_mm = sum(g.text.filament_mm for g in groups)
     total_s = sum(g.timing.total_s for g in groups)
     area = settings.filament_area_mm2
-    traces = " / ".join("%d" % len(g.text.trace_ends) for g in groups)
+    # Each set of paths once (the outer layers print one set twice), in the order of roles.
+    sets = {g.role: len(g.text.trace_ends) for g in groups}
+    traces = " / ".join("%d" % n for n in sets.values())
     return [
         ";FLAVOR:Marlin",
         ";TIME:%d" % round(total_s),
@@ -119,7 +127,7 @@ def header_lines(groups, settings, name, extra=()):
         "; job: %s" % one_line(name),
         "; profile: %s" % one_line(settings.profile_name),
         "; layers: %d, traces per layer: %s, thickness %s..%s mm, E %s" % (
-            layers, traces + (" (lower / upper layer group)" if len(groups) > 1 else ""),
+            layers, traces + (" (%s)" % _ROLE_NAMES[tuple(sets)] if len(sets) > 1 else ""),
             fmt(th_all.min()), fmt(th_all.max()),
             "relative" if settings.relative_e else "absolute"),
         "; filament used [mm] = %.2f" % f_mm,

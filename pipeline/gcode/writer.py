@@ -277,6 +277,41 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
                                  clamped_segments=clamped, upper=upper)
 
 
+def write_laminate_gcode(along, across, profile, out, name="part", center=True):
+    """Write G-code for a stack whose first and last layer print paths of their own.
+
+    along, across : (traces, layer_sigmas), traces a list of (k_i, 2) mm and
+    layer_sigmas a list of (k_i - 1, layers): each segment's shrink in every layer (of
+    the triangle it crosses), so that each layer's Z over every path is the sum of the
+    thicknesses below it there. ``along`` prints the layers between the outer two.
+    Returns the stats of :func:`write_gcode`, with ``across_traces``.
+    """
+    settings = GcodeSettings.from_profile(profile)
+    inner, clamped = _layer_set(*along, settings)
+    outer, clamped_out = _layer_set(*across, settings)
+    return write_thickness_gcode(inner[0], inner[1], settings, out, name=name, center=center,
+                                 arc_values=inner[2], arc_value_span=settings.merge_sigma,
+                                 clamped_segments=clamped + clamped_out, across=outer)
+
+
+def _layer_set(traces, layer_sigmas, settings):
+    """One set of traces with a shrink per layer ready to write: ((traces, (k - 1, layers)
+    thicknesses, arc values), clamped segments)."""
+    if len(traces) != len(layer_sigmas):
+        raise PlanError("%d traces but %d shrink arrays" % (len(traces), len(layer_sigmas)),
+                        code="gcode.bad_input", fix="give one shrink array per trace")
+    layers = settings.layers
+    values = [np.asarray(v, dtype=float).reshape(-1, layers) for v in layer_sigmas]
+    traces, values = merge_chords(traces, values, settings.chord_tolerance_mm,
+                                  settings.merge_sigma)
+    parts = np.cumsum([len(v) for v in values])[:-1]
+    per_seg = np.concatenate(values + [np.zeros((0, layers))])
+    theta, clamped = thickness_for_sigma(per_seg.ravel(), settings)
+    theta = theta.reshape(-1, layers)
+    return ((traces, np.split(theta, parts), np.split(per_seg.mean(axis=1), parts)),
+            int(clamped.reshape(-1, layers).any(axis=1).sum()))
+
+
 def _thickness_set(traces, sigmas, deltas, settings):
     """One set of traces ready to write: ((traces, thicknesses, arc values), clamped
     segments), chords merged and each segment's thickness from its shrink."""
@@ -316,7 +351,7 @@ def _bilayer_thickness(sigma, delta, settings):
 
 def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=True,
                           labels=None, arc_values=None, arc_value_span=0.0,
-                          clamped_segments=0, header_extra=(), upper=None):
+                          clamped_segments=0, header_extra=(), upper=None, across=None):
     """Write G-code for traces with a given layer thickness per segment.
 
     ``write_gcode`` without the shrink curve (calibration prints thicknesses
@@ -326,27 +361,32 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     lines before each trace; ``arc_values`` (per segment, default the
     thickness) may span at most ``arc_value_span`` inside one arc. ``upper``
     (traces, thicknesses, arc values) prints the upper half of the layers on paths of its
-    own. See :func:`write_gcode` for the other parameters and the returned stats.
+    own; ``across`` (the same) the first and the last layer, ``traces`` those between.
+    See :func:`write_gcode` for the other parameters and the returned stats.
     """
     settings = GcodeSettings.from_profile(settings)
-    sets = [(traces, thetas_mm, labels, arc_values)]
+    n = settings.layers
+    split = n - n // 2 if upper is not None else n
+    sets = [(traces, thetas_mm, labels, arc_values, (1, split), "lower")]
     if upper is not None:
-        sets.append((upper[0], upper[1], None, upper[2]))
-    for tr, th, _, _ in sets:
+        sets.append((upper[0], upper[1], None, upper[2], (split + 1, n), "upper"))
+    if across is not None:
+        # The outer layers print their own paths; the plan's paths print those between.
+        sets = [(traces, thetas_mm, labels, arc_values, (2, n - 1), "lower")]
+        sets += [(across[0], across[1], None, across[2], (k, k), "across") for k in (1, n)]
+    for tr, th, _, _, _, _ in sets:
         if len(tr) != len(th):
             raise PlanError("%d traces but %d thickness arrays" % (len(tr), len(th)),
                             code="gcode.bad_input", fix="give one thickness array per trace")
-    offset, over = bed_overhang([t for tr, _, _, _ in sets for t in tr], settings.bed_mm,
+    offset, over = bed_overhang([t for st in sets for t in st[0]], settings.bed_mm,
                                 center=center)
     _check_bed(over, settings.bed_mm)
-    split = settings.layers - settings.layers // 2 if upper is not None else settings.layers
-    spans = [(1, split), (split + 1, settings.layers)]
     groups = []
-    for (tr, th, lab, arc), span in zip(sets, spans):
+    for tr, th, lab, arc, span, role in sets:
         mv, q, starts, th_um, lab = _layer_moves(tr, th, settings, offset, lab, arc,
                                                  arc_value_span)
         g = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0], last=span[1],
-                  labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0)
+                  labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0, role=role)
         g.timing = estimate(q, starts, mv, g.text, settings, span)
         groups.append(g)
     stats = summary(groups, settings, clamped_segments)

@@ -54,6 +54,9 @@ class CurvatureProgram:
     twist : the comparison that chose whether the groups turn apart, or None
     sigma : (m,) the mean shrink the program was made for (printed as such)
     added : the shrink :func:`room_for` added to the layout's, {area_fraction, max}, or None
+    laminate : :class:`pipeline.layout.laminate.Laminate` where the outer layers print
+    across ``d``, or None
+    across : the comparison that chose whether they do, or None
     """
 
     kappa: np.ndarray
@@ -65,6 +68,8 @@ class CurvatureProgram:
     twist: dict = None
     sigma: np.ndarray = None
     added: dict = None
+    laminate: object = None
+    across: dict = None
 
     @property
     def crossed(self):
@@ -100,6 +105,8 @@ class CurvatureProgram:
             out["twist"] = dict(self.twist)
         if self.added is not None:
             out["added_shrink"] = dict(self.added)
+        if self.across is not None:
+            out["across"] = dict(self.across, **(self.laminate.report() if self.laminate else {}))
         return out
 
     def crossing_deg(self):

@@ -5,6 +5,7 @@ thin shell from (almost) flat, as it starts in the bath."""
 import numpy as np
 
 from pipeline.layout import curvature
+from pipeline.layout.laminate import across_laminate
 from pipeline.simulation.shell import simulate_shell, tensor_rest, thickness_for
 
 # The programmed sheet's start: a small bump the way the program rises (from exactly
@@ -25,13 +26,15 @@ TWIST_GAIN = 0.05
 PROBE_ITERATIONS = 80
 
 
-def simulate_free(hf, mesh, flat, profile, twist=True):
+def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
     """Simulate the sheet the free layout ``flat`` of ``mesh`` (the target, from ``hf``)
     prints with ``profile``: settled from (almost) flat with the bilayer program, then,
     with ``twist`` (and the profile's ``curvature.turn_max_deg``), with the layer groups
-    turned apart by the twist, kept where it rests :data:`TWIST_GAIN` closer. Returns
-    (:class:`pipeline.layout.curvature.CurvatureProgram`, with ``twist`` the comparison
-    or None, the simulation result)."""
+    turned apart by the twist, and with ``across`` (and ``curvature.across_layers``), with
+    the outer layers across the paths; each kept where it rests :data:`TWIST_GAIN`
+    closer than the sheet before it. Returns
+    (:class:`pipeline.layout.curvature.CurvatureProgram`, with ``twist`` and ``across``
+    the comparisons or None, the simulation result)."""
     lim = profile.shrink_limits
     # The printed sheet shrinks only within the material's range (the G-code clamps the
     # thickness the same way), so the simulation shrinks by the clamped sigma.
@@ -70,21 +73,62 @@ def simulate_free(hf, mesh, flat, profile, twist=True):
     # Crossed groups need an even layer count: a middle layer printed with either group
     # would shear the sheet's mean shrink by twist / (2 * layers).
     turn = cp.turn_max_deg if profile.layers % 2 == 0 else 0.0
-    if not twist or turn <= 0:
-        return program, sim
-    crossed = programmed(turn)
-    probe = settle(crossed, start=sim.vertices, iterations=PROBE_ITERATIONS)
+    if twist and turn > 0:
+        crossed = programmed(turn)
+        (program, sim), t = _tried(program, sim, crossed, lambda **kw: settle(crossed, **kw))
+        program.twist = {"kept": t["kept"], "turn_max_deg": float(turn),
+                         "crossed_mean_displacement_mm": t["tried_mean_displacement_mm"],
+                         "crossed_at_rest": t["tried_at_rest"],
+                         "along_mean_displacement_mm": t["before_mean_displacement_mm"],
+                         "crossing_deg": crossed.crossing_deg()}
+    if across and cp.across_layers == "auto" and profile.layers >= 4:
+        lam = across_laminate(K, flat.direction, sigma, lambda s: thickness(s) / profile.layers,
+                              profile.layers, lim.s_min, lim.s_max, cp.bilayer_c)
+        outer = _across_program(programmed(0.0), lam, flat, mesh.faces, cp.bilayer_c)
+        metric = lam.metric(flat.direction)
+
+        def settle_across(**kw):
+            return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
+                                  tensor_rest(flat.xy, mesh.faces, metric), lam.thickness_mm,
+                                  theta_rest=outer.theta_rest, pop=BATH_BUMP, **kw)
+        before = program
+        (program, sim), tried = _tried(program, sim, outer, settle_across)
+        program.across = tried
+        # The outer layers replace the turned groups (the inner ones print along d).
+        program.twist = before.twist if not tried["kept"] or before.twist is None else dict(
+            before.twist, kept=False, replaced_by_across=bool(before.twist["kept"]))
+    return program, sim
+
+
+def _tried(program, sim, other, settle):
+    """Settle ``other`` (a program; ``settle(start=, iterations=)`` its sheet) from
+    ``sim``'s shape: a probe of :data:`PROBE_ITERATIONS`, then on to rest if the probe
+    is already :data:`TWIST_GAIN` closer; ``other`` is kept if it rests that much closer.
+    Returns ((program, sim) kept, the comparison)."""
+    probe = settle(start=sim.vertices, iterations=PROBE_ITERATIONS)
     tried = probe
     if probe.mean_displacement_mm < (1.0 - TWIST_GAIN) * sim.mean_displacement_mm:
-        tried = _continued(settle(crossed, start=probe.vertices), sim, probe)
+        tried = _continued(settle(start=probe.vertices), sim, probe)
     kept = tried.mean_displacement_mm < (1.0 - TWIST_GAIN) * sim.mean_displacement_mm
-    choice = (crossed, tried) if kept else (program, sim)
-    choice[0].twist = {"kept": bool(kept), "turn_max_deg": float(turn),
-                       "crossed_mean_displacement_mm": float(tried.mean_displacement_mm),
-                       "crossed_at_rest": tried is not probe,
-                       "along_mean_displacement_mm": float(sim.mean_displacement_mm),
-                       "crossing_deg": crossed.crossing_deg()}
-    return choice
+    comparison = {"kept": bool(kept), "tried_mean_displacement_mm": float(tried.mean_displacement_mm),
+                  "tried_at_rest": tried is not probe,
+                  "before_mean_displacement_mm": float(sim.mean_displacement_mm)}
+    return ((other, tried) if kept else (program, sim)), comparison
+
+
+def _across_program(bilayer, lam, flat, faces, c):
+    """``bilayer`` (the program along ``d``) with its layers as the laminate ``lam``
+    prints them: the inner layers' bilayer along ``d``, the rest angles of the whole
+    stack's curvature, ``lam`` attached."""
+    import dataclasses
+    d = np.asarray(flat.direction, dtype=float)
+    inner = lam.layer_sigma[:, ~lam.across]
+    half = inner.shape[1] // 2
+    K = lam.curvature(d, c)
+    return dataclasses.replace(
+        bilayer, delta_sigma=inner[:, :half].mean(axis=1) - inner[:, half:].mean(axis=1),
+        kappa=np.einsum("mi,mij,mj->m", d, K, d),
+        theta_rest=curvature.rest_angles(flat.xy, faces, lam.metric(d), K), laminate=lam)
 
 
 def _continued(final, *before):

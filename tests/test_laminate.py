@@ -1,0 +1,154 @@
+"""The outer layers printed across the paths: a stack of layers, each shrinking along
+its own direction, gives the sheet its metric and its natural curvature in both
+directions; a terrain, which bends across its paths as much as along them, rests closer
+with it, and its G-code prints the first and last layer on paths of their own."""
+
+import io
+
+import numpy as np
+import pytest
+
+from gcode_parser import parse
+from pipeline.input import shapes
+from pipeline.layout.laminate import Laminate, across_laminate
+from pipeline.profiles.profile import load_profile
+from test_curvature_program import plan_layout, with_curvature
+
+PROFILE = load_profile("generic-0.5mm")
+D = np.array([[1.0, 0.0]])
+ALONG = np.zeros(6, dtype=bool)
+OUTER = np.array([True, False, False, False, False, True])
+
+
+def test_two_equal_groups_along_the_paths_are_the_bilayer():
+    """Three layers at 0.25 below three at 0.15, 1.5 mm thick: the bilayer's
+    ``c * (s_bottom - s_top) / h`` along d, nothing across, mean shrink 0.2 along d."""
+    lam = Laminate(layer_sigma=np.array([[0.25] * 3 + [0.15] * 3]), across=ALONG,
+                   thickness_mm=np.array([1.5]))
+    K = lam.curvature(D, c=1.5)[0]
+    assert K[0, 0] == pytest.approx(1.5 * 0.10 / 1.5) and K[1, 1] == pytest.approx(0.0)
+    assert np.allclose(lam.metric(D)[0], [[0.2, 0.0], [0.0, 0.0]])
+
+
+def test_a_shrinking_first_layer_across_the_paths_curls_the_sheet_across_them():
+    """The first layer, across d, shrinks by 0.1: the sheet curves up across d (a dome's
+    sign), not along it, and shrinks a sixth of that across d."""
+    s = np.array([[0.1, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    lam = Laminate(layer_sigma=s, across=OUTER, thickness_mm=np.array([1.5]))
+    K = lam.curvature(D, c=1.5)[0]
+    assert K[1, 1] > 0 and K[0, 0] == pytest.approx(0.0) and K[0, 1] == pytest.approx(0.0)
+    # Lever of the first of six layers: 5 half layers below the middle.
+    assert K[1, 1] == pytest.approx(6.0 / (36 * 1.5) * 5 * 0.1)
+    assert lam.metric(D)[0] == pytest.approx(np.array([[0.0, 0.0], [0.0, 0.1 / 6]]))
+    s_top = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.1]])
+    top = Laminate(layer_sigma=s_top, across=OUTER, thickness_mm=np.array([1.5]))
+    assert top.curvature(D, c=1.5)[0, 1, 1] == pytest.approx(-K[1, 1])
+
+
+def test_the_stack_programs_the_target_in_both_directions_and_keeps_the_metric_along_d():
+    """Four triangles with the target bending either way along and across d (at 45
+    degrees in the layout): the stack's curvature is the target's, the inner layers
+    carry the layout's shrink along d, and only the outer layer on the concave side of
+    the curvature across d shrinks."""
+    d = np.tile([np.sqrt(0.5), np.sqrt(0.5)], (4, 1))
+    e = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    k_dd = np.array([0.01, -0.01, 0.02, 0.0])
+    k_ee = np.array([0.02, 0.02, -0.015, -0.01])
+    K = (k_dd[:, None, None] * np.einsum("mi,mj->mij", d, d)
+         + k_ee[:, None, None] * np.einsum("mi,mj->mij", e, e))
+    sigma = np.array([0.1, 0.12, 0.08, 0.1])
+    lim = PROFILE.shrink_limits
+
+    def layer_mm(s):
+        return np.clip(PROFILE.shrink_curve.theta(np.asarray(s, float))[0],
+                       PROFILE.thickness_mm.min, PROFILE.thickness_mm.max)
+    lam = across_laminate(K, d, sigma, layer_mm, 6, lim.s_min, lim.s_max, c=1.5)
+    assert np.allclose(lam.curvature(d, c=1.5), K, atol=2e-4)
+    assert np.allclose(np.einsum("mi,mij,mj->m", d, lam.metric(d), d), sigma)
+    s = lam.layer_sigma
+    assert np.all((s[:, 0] > 0) == (k_ee > 0)) and np.all((s[:, -1] > 0) == (k_ee < 0))
+    # The stack's thickness is the sum of the layers' printed for their shrink.
+    assert np.allclose(lam.thickness_mm, layer_mm(s.ravel()).reshape(s.shape).sum(axis=1))
+
+
+def small_terrain():
+    """A 60 x 45 mm terrain tile, 12.5 mm of relief, laid out as the plan does."""
+    hf = shapes.terrain_tile(width_mm=60.0, depth_mm=45.0, height_mm=12.5)
+    return (hf,) + plan_layout(hf)
+
+
+def test_a_terrain_rests_closer_with_its_outer_layers_across_the_paths():
+    """A terrain bends across its paths about as much as along them: with the outer
+    layers across, its sheet rests at least a third closer than the best sheet printed
+    along d (the bilayer, or the twist), and the program says so; with
+    ``across_layers: off`` nothing is tried."""
+    from pipeline.simulation.programmed import simulate_free
+    hf, profile, mesh, flat = small_terrain()
+    prog, sim = simulate_free(hf, mesh, flat, profile)
+    tried = prog.across
+    assert tried["kept"] and prog.laminate is not None and not prog.crossed
+    assert sim.mean_displacement_mm == pytest.approx(tried["tried_mean_displacement_mm"])
+    assert sim.mean_displacement_mm < 0.67 * tried["before_mean_displacement_mm"]
+    report = prog.report()["across"]
+    assert report["layers"] == [1, profile.layers] and report["sigma"]["max"] > 0
+    off, sim_off = simulate_free(hf, mesh, flat, with_curvature(profile, across_layers="off"))
+    assert off.across is None and off.laminate is None
+    assert sim_off.mean_displacement_mm == pytest.approx(tried["before_mean_displacement_mm"])
+
+
+def test_the_outer_layers_print_their_own_paths_each_on_the_layers_below():
+    """The inner layers print paths along x, the first and last layer paths along y;
+    every move's Z is the sum of the thicknesses below it at its own point, and the file
+    counts both sets of paths."""
+    from pipeline.gcode.writer import write_laminate_gcode
+    xs = np.linspace(0, 20, 21)
+    along = [np.c_[xs, np.full(21, y)] for y in (0.0, 10.0, 20.0)]
+    across = [np.c_[np.full(21, x), xs] for x in (0.0, 10.0, 20.0, 5.0)]
+    shrink = np.array([0.2, 0.24, 0.24, 0.16, 0.16, 0.0])
+
+    def table(traces):
+        return [np.tile(shrink, (len(t) - 1, 1)) for t in traces]
+    buf = io.StringIO()
+    stats = write_laminate_gcode((along, table(along)), (across, table(across)), PROFILE, buf)
+    parsed = parse(buf.getvalue())
+    layer_mm = np.clip(PROFILE.shrink_curve.theta(shrink)[0], PROFILE.thickness_mm.min,
+                       PROFILE.thickness_mm.max)
+    for layer in range(1, PROFILE.layers + 1):
+        moves = [m for m in parsed.layer_moves(layer) if m.extruding]
+        along_x = all(m.start[1] == pytest.approx(m.end[1]) for m in moves)
+        outer = layer in (1, PROFILE.layers)
+        assert along_x != outer, layer
+        zs = np.array([m.end[2] for m in moves])
+        assert np.ptp(zs) == 0 and zs[0] == pytest.approx(layer_mm[:layer].sum(), abs=1e-3)
+    assert stats["traces"] == 3 and stats["across_traces"] == 4
+    assert "upper_traces" not in stats
+    area = PROFILE.filament_mm ** 2 * np.pi / 4
+    want = (3 * 20 * layer_mm[1:-1].sum() + 4 * 20 * (layer_mm[0] + layer_mm[-1])) \
+        * PROFILE.path_width_mm / area
+    assert stats["filament_mm"] == pytest.approx(want, rel=1e-3)
+    assert "inner layers / outer layers, across" in buf.getvalue()
+
+
+def test_a_terrain_plan_prints_its_outer_layers_on_paths_across_its_own(tmp_path):
+    """End to end: the plan keeps the outer layers across, gives them stripes across d,
+    reports both sets of paths, and its G-code starts the first layer on them."""
+    from hostd import planner
+    hf = shapes.terrain_tile(width_mm=60.0, depth_mm=45.0, height_mm=12.5)
+    np.save(tmp_path / "t.npy", hf.z)
+    (tmp_path / "t.yaml").write_text("pixel_mm: %r\nmethod: free\n" % hf.pixel_mm)
+    plan = planner.run(tmp_path / "t.npy", PROFILE, tmp_path / "out")
+    r = plan.report
+    assert r["curvature"]["across"]["kept"] and plan.across_toolpaths is not None
+    across = r["toolpath"]["across"]
+    # Stripes follow a field only as far as it is a gradient's turned by a quarter: the
+    # across paths meet d's divergence where the plan's meet its curl (10 degrees here).
+    assert across["coverage"] > 0.9 and across["direction_angle_deg"]["p95"] < 15.0
+    assert 0.8 * 0.48 < across["spacing_mm"]["p05"] and across["spacing_mm"]["p95"] < 1.2 * 0.48
+    assert r["gcode"]["across_traces"] == len(plan.across_toolpaths.traces)
+    assert r["gcode"]["traces"] == len(plan.toolpaths.traces)
+    parsed = parse((tmp_path / "out" / "t.gcode").read_text())
+    first = {layer: [m.start[:2] for m in parsed.layer_moves(layer) if m.extruding][0]
+             for layer in (1, 2, PROFILE.layers)}
+    assert np.allclose(first[1], plan.across_toolpaths.traces[0][0], atol=0.01)
+    assert np.allclose(first[PROFILE.layers], first[1])
+    assert np.allclose(first[2], plan.toolpaths.traces[0][0], atol=0.01)
