@@ -182,8 +182,12 @@ def _toolpath_title(plan):
     up = getattr(plan, "upper_toolpaths", None)
     across = getattr(plan, "across_toolpaths", None)
     if across is not None:
-        return ("%s: inner layers' tool paths, shrink per segment (the first and last layer "
-                "print %d traces of their own, across them)" % (plan.name, len(across.traces)))
+        layers = plan.curvature.laminate.groups()
+        return ("%s: layers %s, tool paths and shrink per segment (layers %s print %d traces "
+                "across them%s)" % (plan.name, ", ".join(map(str, layers["lower"])),
+                                    " and ".join(map(str, layers["across"])), len(across.traces),
+                                    "" if up is None else "; layers %s %d of their own, turned "
+                                    "apart" % (", ".join(map(str, layers["upper"])), len(up.traces))))
     if up is None:
         return "%s: tool paths, shrink per segment" % plan.name
     return ("%s: lower layers' tool paths, shrink per segment (the upper layers print %d traces "
@@ -193,14 +197,18 @@ def _toolpath_title(plan):
 
 def _write_gcode(plan, path):
     """Write the plan's G-code to ``path``: its paths with their bilayer, the upper layer
-    group's own paths, or the outer layers' paths across them. Returns the stats."""
+    group's own paths, and the paths of the layers across them. Returns the stats."""
     tp, up = plan.toolpaths, getattr(plan, "upper_toolpaths", None)
     across = getattr(plan, "across_toolpaths", None)
     if across is not None:
-        table = plan.curvature.laminate.layer_sigma
-        inner, outer = _per_segment(plan, table, tp.traces, across.traces)
-        return gcode.write_laminate_gcode((tp.traces, inner), (across.traces, outer),
-                                          plan.profile, path, name=plan.name, center=False)
+        lam = plan.curvature.laminate
+        groups = lam.groups()
+        sets = [("across", across)] + ([("upper", up)] if up is not None else [])
+        shrink = _per_segment(plan, lam.layer_sigma, tp.traces, *[p.traces for _, p in sets])
+        return gcode.write_laminate_gcode(
+            (tp.traces, shrink[0]),
+            [(paths.traces, per, groups[role], role) for (role, paths), per in zip(sets, shrink[1:])],
+            plan.profile, path, name=plan.name, center=False)
     prog = getattr(plan, "curvature", None)
     deltas = (_per_segment(plan, prog.delta_sigma, tp.traces, *([up.traces] if up else []))
               if prog is not None else [None, None])

@@ -108,7 +108,7 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
         mesh = build_grid_mesh(hf, grid)
         flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
         flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
-        # Paths along d only: the plan turns its layer groups apart or prints its outer
+        # Paths along d only: the plan turns its layer groups apart or prints two
         # layers across only where that rests closer, so the answer errs on the safe
         # side, at one simulation per look.
         _, sim = simulate_free(hf, mesh, flat, profile, twist=False, across=False)

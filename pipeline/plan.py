@@ -349,7 +349,7 @@ def _free_sheet(result, hf, profile, stage, timing):
     result.upper_toolpaths = stripes(upper) if result.curvature.crossed else None
     lam = result.curvature.laminate
     if lam is not None:
-        # The outer layers' paths run across d, a quarter turn from the plan's.
+        # The layers across print stripes a quarter turn from the plan's.
         across = np.stack([-flat.direction[:, 1], flat.direction[:, 0]], axis=1)
         result.across_toolpaths = stripes(across, lam.layer_sigma[:, lam.across].max(axis=1))
     timing["toolpath"] = time.perf_counter() - t

@@ -1,7 +1,7 @@
-"""The outer layers printed across the paths: a stack of layers, each shrinking along
+"""Two layers printed across the paths: a stack of layers, each shrinking along
 its own direction, gives the sheet its metric and its natural curvature in both
 directions; a terrain, which bends across its paths as much as along them, rests closer
-with it, and its G-code prints the first and last layer on paths of their own."""
+with it, and its G-code prints those layers on paths of their own."""
 
 import io
 
@@ -45,28 +45,38 @@ def test_a_shrinking_first_layer_across_the_paths_curls_the_sheet_across_them():
     assert top.curvature(D, c=1.5)[0, 1, 1] == pytest.approx(-K[1, 1])
 
 
-def test_the_stack_programs_the_target_in_both_directions_and_keeps_the_metric_along_d():
+@pytest.mark.parametrize("twist", [0.0, 0.004])
+def test_the_stack_programs_the_target_in_both_directions_and_keeps_the_metric_along_d(twist):
     """Four triangles with the target bending either way along and across d (at 45
-    degrees in the layout): the stack's curvature is the target's, the inner layers
-    carry the layout's shrink along d, and only the outer layer on the concave side of
-    the curvature across d shrinks."""
+    degrees in the layout), and twisting: the stack's curvature is the target's, its
+    mean shrink the layout's along d with no shear, only the layer across on the concave
+    side of the curvature across d shrinks, and the halves along d turn apart only for
+    a twist."""
     d = np.tile([np.sqrt(0.5), np.sqrt(0.5)], (4, 1))
     e = np.stack([-d[:, 1], d[:, 0]], axis=1)
     k_dd = np.array([0.01, -0.01, 0.02, 0.0])
     k_ee = np.array([0.02, 0.02, -0.015, -0.01])
     K = (k_dd[:, None, None] * np.einsum("mi,mj->mij", d, d)
-         + k_ee[:, None, None] * np.einsum("mi,mj->mij", e, e))
+         + k_ee[:, None, None] * np.einsum("mi,mj->mij", e, e)
+         + twist * (np.einsum("mi,mj->mij", d, e) + np.einsum("mi,mj->mij", e, d)))
     sigma = np.array([0.1, 0.12, 0.08, 0.1])
     lim = PROFILE.shrink_limits
 
     def layer_mm(s):
         return np.clip(PROFILE.shrink_curve.theta(np.asarray(s, float))[0],
                        PROFILE.thickness_mm.min, PROFILE.thickness_mm.max)
-    lam = across_laminate(K, d, sigma, layer_mm, 6, lim.s_min, lim.s_max, c=1.5)
+    lam = across_laminate(K, d, sigma, layer_mm, 6, lim.s_min, lim.s_max, c=1.5,
+                          turn_max_deg=20.0)
+    assert list(np.flatnonzero(lam.across) + 1) == [2, 5]
     assert np.allclose(lam.curvature(d, c=1.5), K, atol=2e-4)
-    assert np.allclose(np.einsum("mi,mij,mj->m", d, lam.metric(d), d), sigma)
+    metric = lam.metric(d)
+    assert np.allclose(np.einsum("mi,mij,mj->m", d, metric, d), sigma, atol=1e-4)
+    # Turned halves keep the mean free of shear to first order in their turn.
+    assert np.allclose(np.einsum("mi,mij,mj->m", d, metric, e), 0.0, atol=2e-4)
     s = lam.layer_sigma
-    assert np.all((s[:, 0] > 0) == (k_ee > 0)) and np.all((s[:, -1] > 0) == (k_ee < 0))
+    assert np.all((s[:, 1] > 0) == (k_ee > 0)) and np.all((s[:, 4] > 0) == (k_ee < 0))
+    assert lam.turned == (twist > 0)
+    assert set(lam.groups()) == ({"lower", "upper", "across"} if twist else {"lower", "across"})
     # The stack's thickness is the sum of the layers' printed for their shrink.
     assert np.allclose(lam.thickness_mm, layer_mm(s.ravel()).reshape(s.shape).sum(axis=1))
 
@@ -77,29 +87,30 @@ def small_terrain():
     return (hf,) + plan_layout(hf)
 
 
-def test_a_terrain_rests_closer_with_its_outer_layers_across_the_paths():
-    """A terrain bends across its paths about as much as along them: with the outer
-    layers across, its sheet rests at least a third closer than the best sheet printed
-    along d (the bilayer, or the twist), and the program says so; with
-    ``across_layers: off`` nothing is tried."""
+def test_a_terrain_rests_closer_with_two_layers_across_the_paths():
+    """A terrain bends across its paths about as much as along them: with two layers
+    across, its sheet rests at least a third closer than the best sheet printed along d
+    (the bilayer, or the twist), and the program says so; with ``across_layers: off``
+    nothing is tried."""
     from pipeline.simulation.programmed import simulate_free
     hf, profile, mesh, flat = small_terrain()
     prog, sim = simulate_free(hf, mesh, flat, profile)
     tried = prog.across
-    assert tried["kept"] and prog.laminate is not None and not prog.crossed
+    assert tried["kept"] and prog.laminate is not None
     assert sim.mean_displacement_mm == pytest.approx(tried["tried_mean_displacement_mm"])
     assert sim.mean_displacement_mm < 0.67 * tried["before_mean_displacement_mm"]
     report = prog.report()["across"]
-    assert report["layers"] == [1, profile.layers] and report["sigma"]["max"] > 0
+    assert report["layers"] == [2, profile.layers - 1] and report["sigma"]["max"] > 0
     off, sim_off = simulate_free(hf, mesh, flat, with_curvature(profile, across_layers="off"))
     assert off.across is None and off.laminate is None
     assert sim_off.mean_displacement_mm == pytest.approx(tried["before_mean_displacement_mm"])
 
 
-def test_the_outer_layers_print_their_own_paths_each_on_the_layers_below():
-    """The inner layers print paths along x, the first and last layer paths along y;
-    every move's Z is the sum of the thicknesses below it at its own point, and the file
-    counts both sets of paths."""
+@pytest.mark.parametrize("layers", [(2, 5), (1, 6)])
+def test_the_layers_across_print_their_own_paths_each_on_the_layers_below(layers):
+    """The layers along print paths along x, those across paths along y; every move's Z
+    is the sum of the thicknesses below it at its own point, and the file counts both
+    sets of paths once."""
     from pipeline.gcode.writer import write_laminate_gcode
     xs = np.linspace(0, 20, 21)
     along = [np.c_[xs, np.full(21, y)] for y in (0.0, 10.0, 20.0)]
@@ -109,29 +120,32 @@ def test_the_outer_layers_print_their_own_paths_each_on_the_layers_below():
     def table(traces):
         return [np.tile(shrink, (len(t) - 1, 1)) for t in traces]
     buf = io.StringIO()
-    stats = write_laminate_gcode((along, table(along)), (across, table(across)), PROFILE, buf)
+    stats = write_laminate_gcode((along, table(along)), [(across, table(across), layers, "across")],
+                                 PROFILE, buf)
     parsed = parse(buf.getvalue())
     layer_mm = np.clip(PROFILE.shrink_curve.theta(shrink)[0], PROFILE.thickness_mm.min,
                        PROFILE.thickness_mm.max)
     for layer in range(1, PROFILE.layers + 1):
         moves = [m for m in parsed.layer_moves(layer) if m.extruding]
         along_x = all(m.start[1] == pytest.approx(m.end[1]) for m in moves)
-        outer = layer in (1, PROFILE.layers)
-        assert along_x != outer, layer
+        assert along_x != (layer in layers), layer
         zs = np.array([m.end[2] for m in moves])
         assert np.ptp(zs) == 0 and zs[0] == pytest.approx(layer_mm[:layer].sum(), abs=1e-3)
     assert stats["traces"] == 3 and stats["across_traces"] == 4
     assert "upper_traces" not in stats
     area = PROFILE.filament_mm ** 2 * np.pi / 4
-    want = (3 * 20 * layer_mm[1:-1].sum() + 4 * 20 * (layer_mm[0] + layer_mm[-1])) \
+    mine = np.isin(np.arange(1, 7), layers)
+    want = (3 * 20 * layer_mm[~mine].sum() + 4 * 20 * layer_mm[mine].sum()) \
         * PROFILE.path_width_mm / area
     assert stats["filament_mm"] == pytest.approx(want, rel=1e-3)
-    assert "inner layers / outer layers, across" in buf.getvalue()
+    # Each straight trace merges into one chord; each set counted once.
+    assert stats["segments"] == 3 + 4
+    assert "3 / 4 (along / across)" in buf.getvalue()
 
 
-def test_a_terrain_plan_prints_its_outer_layers_on_paths_across_its_own(tmp_path):
-    """End to end: the plan keeps the outer layers across, gives them stripes across d,
-    reports both sets of paths, and its G-code starts the first layer on them."""
+def test_a_terrain_plan_prints_two_layers_on_paths_across_its_own(tmp_path):
+    """End to end: the plan keeps two layers across, gives them stripes across d,
+    reports each set of paths, and its G-code starts those layers on them."""
     from hostd import planner
     hf = shapes.terrain_tile(width_mm=60.0, depth_mm=45.0, height_mm=12.5)
     np.save(tmp_path / "t.npy", hf.z)
@@ -147,8 +161,38 @@ def test_a_terrain_plan_prints_its_outer_layers_on_paths_across_its_own(tmp_path
     assert r["gcode"]["across_traces"] == len(plan.across_toolpaths.traces)
     assert r["gcode"]["traces"] == len(plan.toolpaths.traces)
     parsed = parse((tmp_path / "out" / "t.gcode").read_text())
-    first = {layer: [m.start[:2] for m in parsed.layer_moves(layer) if m.extruding][0]
-             for layer in (1, 2, PROFILE.layers)}
-    assert np.allclose(first[1], plan.across_toolpaths.traces[0][0], atol=0.01)
-    assert np.allclose(first[PROFILE.layers], first[1])
-    assert np.allclose(first[2], plan.toolpaths.traces[0][0], atol=0.01)
+    paths = {"lower": plan.toolpaths, "upper": plan.upper_toolpaths,
+             "across": plan.across_toolpaths}
+    groups = plan.curvature.laminate.groups()
+    assert sorted(k for ks in groups.values() for k in ks) == list(range(1, PROFILE.layers + 1))
+    for role, layers in groups.items():
+        for layer in layers:
+            first = next(m.start[:2] for m in parsed.layer_moves(layer) if m.extruding)
+            assert np.allclose(first, paths[role].traces[0][0], atol=0.01), (role, layer)
+
+
+def test_three_sets_of_paths_each_print_their_own_layers():
+    """Halves along d turned apart and two layers across: each layer prints its own
+    set's paths, and the file counts each set."""
+    from pipeline.gcode.writer import write_laminate_gcode
+    xs = np.linspace(0, 20, 21)
+    sets = {"lower": [np.c_[xs, np.full(21, y)] for y in (0.0, 10.0)],
+            "upper": [np.c_[xs, np.full(21, y)] for y in (2.0, 12.0, 22.0)],
+            "across": [np.c_[np.full(21, x), xs] for x in (0.0, 10.0, 20.0, 5.0)]}
+    layers = {"lower": [1, 3], "upper": [4, 6], "across": [2, 5]}
+    shrink = np.array([0.24, 0.05, 0.24, 0.16, 0.0, 0.16])
+
+    def table(traces):
+        return [np.tile(shrink, (len(t) - 1, 1)) for t in traces]
+    buf = io.StringIO()
+    stats = write_laminate_gcode(
+        (sets["lower"], table(sets["lower"])),
+        [(sets[r], table(sets[r]), layers[r], r) for r in ("across", "upper")], PROFILE, buf,
+        center=False)
+    parsed = parse(buf.getvalue())
+    for role, ks in layers.items():
+        for k in ks:
+            first = next(m.start[:2] for m in parsed.layer_moves(k) if m.extruding)
+            assert np.allclose(first, sets[role][0][0], atol=1e-3), (role, k)
+    assert (stats["traces"], stats["upper_traces"], stats["across_traces"]) == (2, 3, 4)
+    assert "2 / 4 / 3 (lower half along / across / upper half along)" in buf.getvalue()

@@ -80,7 +80,7 @@ class Group:
     starts : (t + 1,) int, trace i owns ``q[starts[i]:starts[i + 1]]``; th_mm : (s, K)
     each segment's thickness; timing : its layers' estimate
     (:class:`pipeline.gcode.summary.Timing`); role : ``lower`` (the plan's paths),
-    ``upper`` (the upper layer group's own) or ``across`` (the outer layers')."""
+    ``upper`` (the upper layer group's own) or ``across`` (the layers across the others')."""
 
     mv: dict
     text: MoveText

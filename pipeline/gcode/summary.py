@@ -64,6 +64,8 @@ def summary(groups, settings, clamped_segments):
     th_all = np.concatenate([g.th_mm.ravel() for g in groups])
     filament = sum(g.text.filament_mm for g in groups)
     lower = groups[0]
+    # One set of paths may print several runs of layers: count its paths once.
+    sets = list({g.role: g for g in groups}.values())
     stats = {
         "lines": 0, "bytes": 0, "layers": settings.layers,
         "thickness_mm": {"min": float(th_all.min()), "max": float(th_all.max())},
@@ -73,7 +75,7 @@ def summary(groups, settings, clamped_segments):
         "estimated_print_s": round(sum(g.timing.total_s for g in groups), 1), "bed_fits": True,
         "travel_moves": sum((len(g.starts) - 1) * g.layers for g in groups),
         "traces": len(lower.starts) - 1,
-        "segments": sum(len(g.q) - (len(g.starts) - 1) for g in groups),
+        "segments": sum(len(g.q) - (len(g.starts) - 1) for g in sets),
         "extrusion_moves": sum(len(g.mv["len"]) * g.layers for g in groups),
         "path_length_mm": round(lower.timing.path_length_mm, 3),
         "moves_per_s": round(max(len(g.mv["len"]) / max(g.timing.path_length_mm
@@ -89,8 +91,13 @@ def summary(groups, settings, clamped_segments):
     return stats
 
 
-_ROLE_NAMES = {("lower", "upper"): "lower / upper layer group",
-               ("lower", "across"): "inner layers / outer layers, across"}
+def _set_names(roles):
+    """What each set of paths in the header's trace count prints."""
+    if roles == ("lower", "upper"):
+        return "lower / upper layer group"
+    names = {"lower": "lower half along" if "upper" in roles else "along",
+             "upper": "upper half along", "across": "across"}
+    return " / ".join(names[r] for r in roles)
 
 
 def filament_g(filament_mm, settings):
@@ -111,7 +118,7 @@ def header_lines(groups, settings, name, extra=()):
     f_mm = sum(g.text.filament_mm for g in groups)
     total_s = sum(g.timing.total_s for g in groups)
     area = settings.filament_area_mm2
-    # Each set of paths once (the outer layers print one set twice), in the order of roles.
+    # Each set of paths once (one set may print several runs of layers).
     sets = {g.role: len(g.text.trace_ends) for g in groups}
     traces = " / ".join("%d" % n for n in sets.values())
     return [
@@ -127,7 +134,7 @@ def header_lines(groups, settings, name, extra=()):
         "; job: %s" % one_line(name),
         "; profile: %s" % one_line(settings.profile_name),
         "; layers: %d, traces per layer: %s, thickness %s..%s mm, E %s" % (
-            layers, traces + (" (%s)" % _ROLE_NAMES[tuple(sets)] if len(sets) > 1 else ""),
+            layers, traces + (" (%s)" % _set_names(tuple(sets)) if len(sets) > 1 else ""),
             fmt(th_all.min()), fmt(th_all.max()),
             "relative" if settings.relative_e else "absolute"),
         "; filament used [mm] = %.2f" % f_mm,

@@ -277,21 +277,27 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
                                  clamped_segments=clamped, upper=upper)
 
 
-def write_laminate_gcode(along, across, profile, out, name="part", center=True):
-    """Write G-code for a stack whose first and last layer print paths of their own.
+def write_laminate_gcode(along, others, profile, out, name="part", center=True):
+    """Write G-code for a stack whose layers print several sets of paths.
 
-    along, across : (traces, layer_sigmas), traces a list of (k_i, 2) mm and
-    layer_sigmas a list of (k_i - 1, layers): each segment's shrink in every layer (of
-    the triangle it crosses), so that each layer's Z over every path is the sum of the
-    thicknesses below it there. ``along`` prints the layers between the outer two.
-    Returns the stats of :func:`write_gcode`, with ``across_traces``.
+    along : (traces, layer_sigmas), traces a list of (k_i, 2) mm and layer_sigmas a
+    list of (k_i - 1, layers): each segment's shrink in every layer (of the triangle it
+    crosses), so that each layer's Z over every path is the sum of the thicknesses below
+    it there; others : [(traces, layer_sigmas, layer numbers from 1, role), ...], each
+    set printing its layers (role ``upper`` or ``across`` names its count in the stats);
+    ``along`` prints the layers left. Returns the stats of :func:`write_gcode`, with
+    ``upper_traces`` / ``across_traces``.
     """
     settings = GcodeSettings.from_profile(profile)
-    inner, clamped = _layer_set(*along, settings)
-    outer, clamped_out = _layer_set(*across, settings)
-    return write_thickness_gcode(inner[0], inner[1], settings, out, name=name, center=center,
-                                 arc_values=inner[2], arc_value_span=settings.merge_sigma,
-                                 clamped_segments=clamped + clamped_out, across=outer)
+    main, clamped = _layer_set(*along, settings)
+    rest = []
+    for traces, layer_sigmas, layers, role in others:
+        done, more = _layer_set(traces, layer_sigmas, settings)
+        rest.append(done + (layers, role))
+        clamped += more
+    return write_thickness_gcode(main[0], main[1], settings, out, name=name, center=center,
+                                 arc_values=main[2], arc_value_span=settings.merge_sigma,
+                                 clamped_segments=clamped, others=rest)
 
 
 def _layer_set(traces, layer_sigmas, settings):
@@ -351,7 +357,7 @@ def _bilayer_thickness(sigma, delta, settings):
 
 def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=True,
                           labels=None, arc_values=None, arc_value_span=0.0,
-                          clamped_segments=0, header_extra=(), upper=None, across=None):
+                          clamped_segments=0, header_extra=(), upper=None, others=()):
     """Write G-code for traces with a given layer thickness per segment.
 
     ``write_gcode`` without the shrink curve (calibration prints thicknesses
@@ -361,19 +367,21 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     lines before each trace; ``arc_values`` (per segment, default the
     thickness) may span at most ``arc_value_span`` inside one arc. ``upper``
     (traces, thicknesses, arc values) prints the upper half of the layers on paths of its
-    own; ``across`` (the same) the first and the last layer, ``traces`` those between.
+    own; each of ``others`` (traces, thicknesses, arc values, layer numbers from 1, role:
+    ``upper`` or ``across``) prints its layers; ``traces`` print the layers left.
     See :func:`write_gcode` for the other parameters and the returned stats.
     """
     settings = GcodeSettings.from_profile(settings)
     n = settings.layers
-    split = n - n // 2 if upper is not None else n
-    sets = [(traces, thetas_mm, labels, arc_values, (1, split), "lower")]
+    others = list(others)
     if upper is not None:
-        sets.append((upper[0], upper[1], None, upper[2], (split + 1, n), "upper"))
-    if across is not None:
-        # The outer layers print their own paths; the plan's paths print those between.
-        sets = [(traces, thetas_mm, labels, arc_values, (2, n - 1), "lower")]
-        sets += [(across[0], across[1], None, across[2], (k, k), "across") for k in (1, n)]
+        others.append((upper[0], upper[1], upper[2], range(n - n // 2 + 1, n + 1), "upper"))
+    # Each other set prints its own layers; the traces given first print the rest.
+    taken = {int(k) for o in others for k in o[3]}
+    sets = [(traces, thetas_mm, labels, arc_values,
+             _runs([k for k in range(1, n + 1) if k not in taken]), "lower")]
+    sets += [(tr, th, None, arc, _runs(sorted(int(k) for k in ks)), role)
+             for tr, th, arc, ks, role in others]
     for tr, th, _, _, _, _ in sets:
         if len(tr) != len(th):
             raise PlanError("%d traces but %d thickness arrays" % (len(tr), len(th)),
@@ -382,13 +390,15 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
                                 center=center)
     _check_bed(over, settings.bed_mm)
     groups = []
-    for tr, th, lab, arc, span, role in sets:
+    for tr, th, lab, arc, spans, role in sets:
         mv, q, starts, th_um, lab = _layer_moves(tr, th, settings, offset, lab, arc,
                                                  arc_value_span)
-        g = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0], last=span[1],
-                  labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0, role=role)
-        g.timing = estimate(q, starts, mv, g.text, settings, span)
-        groups.append(g)
+        for span in spans:
+            g = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0],
+                      last=span[1], labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0,
+                      role=role)
+            g.timing = estimate(q, starts, mv, g.text, settings, span)
+            groups.append(g)
     stats = summary(groups, settings, clamped_segments)
     header = header_lines(groups, settings, name, header_extra)
     sink = _write(out, lambda sink: emit(sink, header, groups, groups[0].timing, settings))
@@ -402,6 +412,17 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
                           for g in groups)
         stats["lines_without_arcs"] = sink.lines + moves_saved
     return stats
+
+
+def _runs(layers):
+    """Sorted layer numbers as runs of consecutive ones: [(first, last), ...]."""
+    runs = []
+    for k in layers:
+        if runs and runs[-1][1] == k - 1:
+            runs[-1] = (runs[-1][0], k)
+        else:
+            runs.append((k, k))
+    return runs
 
 
 def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_value_span):

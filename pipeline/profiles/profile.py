@@ -161,7 +161,7 @@ class CurvatureParams:
     # Shrink the program may add along the print direction where the layout leaves too
     # little around the mean for the thickness difference the curvature wants (0: none).
     max_added_shrink: float = _num(0.03, strict=False, hi=0.2)
-    # The first and last layer printed across the paths to program the curvature across
+    # Two layers printed across the paths to program the curvature across
     # them: `auto` tries it and keeps it where the sheet then rests closer, `off` never.
     across_layers: str = _str("auto", choices=("auto", "off"))
 

@@ -31,8 +31,9 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
     prints with ``profile``: settled from (almost) flat with the bilayer program, then,
     with ``twist`` (and the profile's ``curvature.turn_max_deg``), with the layer groups
     turned apart by the twist, and with ``across`` (and ``curvature.across_layers``), with
-    the outer layers across the paths; each kept where it rests :data:`TWIST_GAIN`
-    closer than the sheet before it. Returns
+    two layers across the paths (:mod:`pipeline.layout.laminate`, its halves along them
+    turned apart too); each kept where it rests :data:`TWIST_GAIN` closer than the sheet
+    before it. Returns
     (:class:`pipeline.layout.curvature.CurvatureProgram`, with ``twist`` and ``across``
     the comparisons or None, the simulation result)."""
     lim = profile.shrink_limits
@@ -83,20 +84,21 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
                          "crossing_deg": crossed.crossing_deg()}
     if across and cp.across_layers == "auto" and profile.layers >= 4:
         lam = across_laminate(K, flat.direction, sigma, lambda s: thickness(s) / profile.layers,
-                              profile.layers, lim.s_min, lim.s_max, cp.bilayer_c)
-        outer = _across_program(programmed(0.0), lam, flat, mesh.faces, cp.bilayer_c)
+                              profile.layers, lim.s_min, lim.s_max, cp.bilayer_c,
+                              turn_max_deg=turn if twist else 0.0)
+        stack = _across_program(programmed(0.0), lam, flat, mesh.faces, cp.bilayer_c)
         metric = lam.metric(flat.direction)
 
         def settle_across(**kw):
             return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
                                   tensor_rest(flat.xy, mesh.faces, metric), lam.thickness_mm,
-                                  theta_rest=outer.theta_rest, pop=BATH_BUMP, **kw)
+                                  theta_rest=stack.theta_rest, pop=BATH_BUMP, **kw)
         before = program
-        (program, sim), tried = _tried(program, sim, outer, settle_across)
+        (program, sim), tried = _tried(program, sim, stack, settle_across)
         program.across = tried
-        # The outer layers replace the turned groups (the inner ones print along d).
+        # With the layers across, the halves along d turn apart as the stack's twist needs.
         program.twist = before.twist if not tried["kept"] or before.twist is None else dict(
-            before.twist, kept=False, replaced_by_across=bool(before.twist["kept"]))
+            before.twist, kept=program.crossed, with_across=True)
     return program, sim
 
 
@@ -125,10 +127,13 @@ def _across_program(bilayer, lam, flat, faces, c):
     inner = lam.layer_sigma[:, ~lam.across]
     half = inner.shape[1] // 2
     K = lam.curvature(d, c)
+    zero = np.zeros(len(d))
     return dataclasses.replace(
         bilayer, delta_sigma=inner[:, :half].mean(axis=1) - inner[:, half:].mean(axis=1),
         kappa=np.einsum("mi,mij,mj->m", d, K, d),
-        theta_rest=curvature.rest_angles(flat.xy, faces, lam.metric(d), K), laminate=lam)
+        theta_rest=curvature.rest_angles(flat.xy, faces, lam.metric(d), K), laminate=lam,
+        turn_bottom=lam.turn_bottom if lam.turned else zero,
+        turn_top=lam.turn_top if lam.turned else zero)
 
 
 def _continued(final, *before):
