@@ -12,13 +12,18 @@ change the rest dihedral angles, and the plan's rows also the shrink the program
 - ``bilayer_room_crossed``: that with the layer groups turned apart by the target's twist
   (they shrink by their mean); the plan prints whichever of the last two rests closer
   (``plan_kept_crossing``);
+- ``layers_across``: the stack with two layers across ``d`` for the curvature across it and
+  the halves along ``d`` turned apart (:mod:`pipeline.layout.laminate`), with its own metric
+  and thickness; the plan prints it where it rests closer still (``plan_kept_across``);
 - ``along_d``: the target's curvature along ``d`` from the 1 mm smoothed field, no limit;
 - ``full_tensor``: the target's whole curvature (1 mm smoothed field) in the layout frame,
   which paths that shrink only along themselves cannot program;
 - ``target_angles``: the target mesh's own dihedral angles.
 
 The gap between the plan's rows and ``full_tensor`` is what curvature across the print
-direction would bring. Mean displacement as a fraction of the report's longest diameter.
+direction would bring, and ``layers_across`` how much of it two layers across bring.
+Mean displacement as a fraction of the report's longest diameter. Every row starts flat
+(the plan tries the twist and the layers across from the sheet the bilayer settled).
 
     python benchmarks/curvature.py [INPUT ...]   # default: three reference shapes, the real tiles
 """
@@ -54,6 +59,7 @@ def _inputs(folder):
 def study(path):
     """One input: the plan's figures and the displacement under each rest curvature."""
     from pipeline.layout import curvature
+    from pipeline.layout.laminate import across_laminate
     from pipeline.mechanics.constraints import topology
     from pipeline.mechanics.shell import dihedral
     from pipeline.plan import plan_file
@@ -86,15 +92,22 @@ def study(path):
                     ("bilayer", sigma, thick, 0.0),
                     ("bilayer_room", roomy, thick_roomy, 0.0),
                     ("bilayer_room_crossed", roomy, thick_roomy, prof.curvature.turn_max_deg))}
+    lam = across_laminate(K5, d, roomy, lambda s: thickness_for(
+        s, prof.shrink_curve, 1, prof.thickness_mm.min, prof.thickness_mm.max), prof.layers,
+        lim.s_min, lim.s_max, prof.curvature.bilayer_c, turn_max_deg=prof.curvature.turn_max_deg)
+    lam_metric = lam.metric(d)
     variants = {
         "none": None, **{name: prog[0].theta_rest for name, prog in programs.items()},
+        "layers_across": curvature.rest_angles(flat.xy, mesh.faces, lam_metric,
+                                               lam.curvature(d, prof.curvature.bilayer_c), top),
         "along_d": curvature.rest_angles(flat.xy, mesh.faces, shrink, along, top),
         "full_tensor": curvature.rest_angles(flat.xy, mesh.faces, shrink, K, top),
         "target_angles": dihedral(mesh.vertices, top.hinges)}
     diameter = p.report["heightfield"]["longest_diameter_mm"]
     out = {"input": path.name, "fit_scale": (p.fit.applied_scale if p.fit else None),
            "longest_diameter_mm": diameter, "triangles": len(mesh.faces),
-           "plan_kept_crossing": p.curvature.crossed}
+           "plan_kept_crossing": p.curvature.crossed,
+           "plan_kept_across": p.curvature.laminate is not None}
     for name, theta in variants.items():
         t = time.perf_counter()
         own, h = rest, thick
@@ -103,6 +116,8 @@ def study(path):
             prog, s, h = programs[name]
             A, B = prog.group_tensors(d, s)
             own = tensor_rest(flat.xy, mesh.faces, (A + B) / 2)
+        if name == "layers_across":
+            own, h = tensor_rest(flat.xy, mesh.faces, lam_metric), lam.thickness_mm
         sim = simulate_shell(mesh.vertices, mesh.faces, flat.xy, own, h, theta_rest=theta,
                              pop=BATH_BUMP)
         out[name] = {"mean_displacement_pct": round(100 * sim.mean_displacement_mm / diameter, 3),

@@ -182,12 +182,11 @@ def _toolpath_title(plan):
     up = getattr(plan, "upper_toolpaths", None)
     across = getattr(plan, "across_toolpaths", None)
     if across is not None:
-        layers = plan.curvature.laminate.groups()
-        return ("%s: layers %s, tool paths and shrink per segment (layers %s print %d traces "
-                "across them%s)" % (plan.name, ", ".join(map(str, layers["lower"])),
-                                    " and ".join(map(str, layers["across"])), len(across.traces),
-                                    "" if up is None else "; layers %s %d of their own, turned "
-                                    "apart" % (", ".join(map(str, layers["upper"])), len(up.traces))))
+        layers = {k: " and ".join(map(str, v)) for k, v in plan.curvature.laminate.groups().items()}
+        return ("%s: tool paths of layers %s, shrink per segment (layers %s: %d traces across "
+                "them%s)" % (plan.name, layers["lower"], layers["across"], len(across.traces),
+                             "" if up is None else "; layers %s: %d of their own, turned apart"
+                             % (layers["upper"], len(up.traces))))
     if up is None:
         return "%s: tool paths, shrink per segment" % plan.name
     return ("%s: lower layers' tool paths, shrink per segment (the upper layers print %d traces "
