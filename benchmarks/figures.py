@@ -136,7 +136,9 @@ def render(groups):
                 "paths across the others' (the curvature across them). "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
-                "tile again at the size the time targets name, with the default method. Load to "
+                "tile again at the size the time targets name, with the default method; rows `smoothed "
+                "6 mm`: the real tile at its sidecar's full relief with `smooth_mm: 6`, the "
+                "smoothing the plan's advice names for both tiles. Load to "
                 "simulation counts the fit (it solves the plan's layout). `of relief`: the mean "
                 "displacement over the relief planned (a quarter or more and the hills and "
                 "valleys hardly show).", "", *_table(both), ""]
