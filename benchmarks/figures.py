@@ -268,11 +268,10 @@ def _pct(v):
 
 def _traces(r):
     """Traces per layer of each set of paths the plan prints."""
-    if r.get("across_traces"):
-        return "%d + %d across" % (r["traces"], r["across_traces"])
-    if r.get("upper_traces"):
-        return "%d + %d" % (r["traces"], r["upper_traces"])
-    return r.get("traces")
+    if not r.get("upper_traces") and not r.get("across_traces"):
+        return r.get("traces")
+    parts = ["%d" % r["traces"]] + (["%d" % r["upper_traces"]] if r.get("upper_traces") else [])
+    return " + ".join(parts + (["%d across" % r["across_traces"]] if r.get("across_traces") else []))
 
 
 def _disp(r):
