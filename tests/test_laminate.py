@@ -196,3 +196,29 @@ def test_three_sets_of_paths_each_print_their_own_layers():
             assert np.allclose(first, sets[role][0][0], atol=1e-3), (role, k)
     assert (stats["traces"], stats["upper_traces"], stats["across_traces"]) == (2, 3, 4)
     assert "2 / 4 / 3 (lower half along / across / upper half along)" in buf.getvalue()
+
+
+def _settled(mean_mm):
+    """A settled sheet whose mean displacement is ``mean_mm``."""
+    from pipeline.simulation.forward import SimResult
+    return SimResult(vertices=np.zeros((3, 3)), displacement_mm=np.full(3, mean_mm),
+                     mean_displacement_mm=mean_mm, max_displacement_mm=mean_mm, iterations=10,
+                     converged=True, mirrored=False, clamped_edges=0, sheet_vertices=3,
+                     coarse_iterations=0, energy_history=[1.0], timing_s={"total": 0.1})
+
+
+@pytest.mark.parametrize("probe_mm, rest_mm, kept", [(0.85, None, False), (0.7, 0.85, False),
+                                                     (0.7, 0.75, True)])
+def test_layers_across_are_kept_only_where_the_sheet_rests_a_fifth_closer(probe_mm, rest_mm, kept):
+    """A third set of stripes costs tool-path time and traces: the layers across are kept
+    only at 20 % closer (the twist at 5 %), settled on only when the probe is already."""
+    from pipeline.simulation.programmed import ACROSS_GAIN, _tried
+    assert ACROSS_GAIN == 0.2
+    settles = []
+
+    def settle(start=None, iterations=None):
+        settles.append(iterations)
+        return _settled(probe_mm if iterations else rest_mm)
+    (program, sim), tried = _tried("bilayer", _settled(1.0), "stack", settle, ACROSS_GAIN)
+    assert tried["kept"] == kept and program == ("stack" if kept else "bilayer")
+    assert tried["tried_at_rest"] == (rest_mm is not None) == (len(settles) == 2)
