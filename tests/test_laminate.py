@@ -222,3 +222,22 @@ def test_layers_across_are_kept_only_where_the_sheet_rests_a_fifth_closer(probe_
     (program, sim), tried = _tried("bilayer", _settled(1.0), "stack", settle, ACROSS_GAIN)
     assert tried["kept"] == kept and program == ("stack" if kept else "bilayer")
     assert tried["tried_at_rest"] == (rest_mm is not None) == (len(settles) == 2)
+
+
+@pytest.mark.parametrize("layers", [4, 5, 7])
+def test_any_layer_count_of_four_or_more_keeps_the_metric_and_programs_the_curvature(layers):
+    """Four, five or seven layers: two across (the second and second-last), the others
+    along d keep the layout's shrink as their mean (a middle layer at the mean) and the
+    stack bends as the target where the range allows."""
+    d = np.tile([1.0, 0.0], (3, 1))
+    K = np.array([np.diag([0.004, 0.006]), np.diag([-0.003, 0.002]), np.diag([0.0, -0.005])])
+    sigma = np.array([0.12, 0.1, 0.08])
+    lim = PROFILE.shrink_limits
+
+    def layer_mm(s):
+        return np.clip(PROFILE.shrink_curve.theta(np.asarray(s, float))[0],
+                       PROFILE.thickness_mm.min, PROFILE.thickness_mm.max)
+    lam = across_laminate(K, d, sigma, layer_mm, layers, lim.s_min, lim.s_max, c=1.5)
+    assert list(np.flatnonzero(lam.across) + 1) == [2, layers - 1]
+    assert np.allclose(lam.metric(d)[:, 0, 0], sigma)
+    assert np.allclose(lam.curvature(d, c=1.5), K, atol=2e-4)

@@ -130,7 +130,9 @@ def across_laminate(K_target, direction, sigma, thickness_of, layers, s_min, s_m
     lo, hi = np.flatnonzero(across)[[0, -1]]
     # The inner layers alone carry the metric along d.
     mean = np.clip(np.asarray(sigma, dtype=float) * layers / (layers - 2), s_min, s_max)
-    half = np.where(lever[~across] > 0, 0.5, -0.5)
+    # The lower layers along d at mean + delta / 2, the upper at mean - delta / 2, a middle
+    # one (odd counts) at the mean: their mean stays the metric's.
+    half = 0.5 * np.sign(lever[~across])
     room = 2.0 * np.clip(np.minimum(mean - s_min, s_max - mean), 0.0, None)
     s = np.empty((len(mean), layers))
     h = layers * thickness_of(mean)
