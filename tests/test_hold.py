@@ -89,3 +89,24 @@ def test_a_look_whose_relief_does_not_show_does_not_hold(monkeypatch):
     monkeypatch.setattr(alternatives, "RELIEF_LOST", 1e-6)
     none = alternatives.smoothing_that_holds(hf, lenient, opts, 60.0, fit_height_too=False)
     assert none["smooth_mm"] is None and all(t[4] > 1e-6 for t in none["tried"])
+
+
+def test_each_look_simulates_the_sheet_as_the_plan_would_print_it(monkeypatch):
+    """The advice is for the plan that follows it: each look settles the sheet with the
+    twist and the layers across tried, as the plan does, not along d only (which asked
+    the real tiles for 4 and 6 mm where 3 and 4 hold)."""
+    from pipeline import alternatives
+    from pipeline.input.validate import validate
+    from pipeline.simulation import programmed
+    calls = []
+
+    def recorded(*args, **kwargs):
+        calls.append(kwargs)
+        return programmed.simulate_free(*args, **kwargs)
+    monkeypatch.setattr(alternatives, "simulate_free", recorded)
+    prof = load_profile("generic-0.5mm")
+    hf, _ = validate(shapes.starfish_ridged(diameter_mm=60.0, height_mm=12.0), 2.0)
+    held = alternatives.smoothing_that_holds(hf, prof, {"min_prominence_mm": 2.0, "smooth_mm": 1.0},
+                                             60.0, fit_height_too=False)
+    assert calls and len(calls) == len(held["tried"])
+    assert all(kw.get("twist", True) and kw.get("across", True) for kw in calls)
