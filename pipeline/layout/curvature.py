@@ -54,7 +54,7 @@ class CurvatureProgram:
     twist : the comparison that chose whether the groups turn apart, or None
     sigma : (m,) the mean shrink the program was made for (printed as such)
     added : the shrink :func:`room_for` added to the layout's, {area_fraction, max}, or None
-    laminate : :class:`pipeline.layout.laminate.Laminate` where the outer layers print
+    laminate : :class:`pipeline.layout.laminate.Laminate` where two layers print
     across ``d``, or None
     across : the comparison that chose whether they do, or None
     """
