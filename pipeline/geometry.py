@@ -76,6 +76,12 @@ class SimSheet:
     t: np.ndarray
 
 
+def quarter_turn(d):
+    """Directions ``d`` ((m, 2)) turned a quarter counter-clockwise: across them, (m, 2)."""
+    d = np.asarray(d, dtype=float)
+    return np.stack([-d[:, 1], d[:, 0]], axis=1)
+
+
 def unique_edges(faces, return_counts=False):
     """Unique undirected edges of a triangle mesh.
 

@@ -19,6 +19,7 @@ from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
 from pipeline.input.simplify import simplify
 from pipeline.input.validate import validate
+from pipeline.geometry import quarter_turn
 from pipeline.layout import curvature
 from pipeline.layout.fit import fit_height, scaled
 from pipeline.layout.free import FREE_BELOW, flatten_free
@@ -350,8 +351,8 @@ def _free_sheet(result, hf, profile, stage, timing):
     lam = result.curvature.laminate
     if lam is not None:
         # The layers across print stripes a quarter turn from the plan's.
-        across = np.stack([-flat.direction[:, 1], flat.direction[:, 0]], axis=1)
-        result.across_toolpaths = stripes(across, lam.layer_sigma[:, lam.across].max(axis=1))
+        result.across_toolpaths = stripes(quarter_turn(flat.direction),
+                                          lam.layer_sigma[:, lam.across].max(axis=1))
     timing["toolpath"] = time.perf_counter() - t
 
 

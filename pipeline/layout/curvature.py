@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import distance_transform_edt, gaussian_filter, map_coordinates
 
-from pipeline.geometry import hat_gradients
+from pipeline.geometry import hat_gradients, quarter_turn
 from pipeline.mechanics.constraints import topology
 
 # Timoshenko's bilayer, equal thickness and modulus: kappa = 1.5 * delta_strain / h.
@@ -194,7 +194,7 @@ def program(K_target, faces, xy, direction, sigma, thickness_mm, s_min, s_max,
     top = topology(faces, len(xy))
     sigma = np.asarray(sigma, dtype=float)
     d = np.asarray(direction, dtype=float)
-    e = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    e = quarter_turn(d)
     K = np.asarray(K_target, dtype=float)
     h = np.asarray(thickness_mm, dtype=float)
     room = 2.0 * np.clip(np.minimum(sigma - s_min, s_max - sigma), 0.0, None)

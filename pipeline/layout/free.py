@@ -21,6 +21,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from pipeline.geometry import quarter_turn
+
 # A Jacobian that leaves the admissible set by more than this (relative) counts as invalid.
 INVALID_TOL = 0.01
 # Below this shrink a triangle prints the same sheet along any direction.
@@ -226,7 +228,7 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
 def _across_strain(J, d):
     """Strain of the layout across each triangle's print direction ``d`` ((m, 2) unit),
     from the Jacobians ``J`` ((m, 2, 2), target -> layout): {mean_abs, max_abs}."""
-    across = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    across = quarter_turn(d)
     target = np.linalg.solve(J, across[:, :, None])[:, :, 0]
     strain = 1.0 / np.maximum(np.linalg.norm(target, axis=1), 1e-12) - 1.0
     return {"mean_abs": float(np.abs(strain).mean()) if len(strain) else 0.0,

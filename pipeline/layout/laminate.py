@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.geometry import quarter_turn
+
 
 def levers(layers):
     """Each layer's distance below the middle in half layers: (N,) ``N + 1 - 2 i``."""
@@ -76,7 +78,7 @@ class Laminate:
         """Print direction of every layer of every triangle: (m, N, 2) unit."""
         from pipeline.layout.curvature import turned
         d = np.asarray(direction, dtype=float)
-        e = np.stack([-d[:, 1], d[:, 0]], axis=1)
+        e = quarter_turn(d)
         n = np.where(self.across[None, :, None], e[:, None, :], d[:, None, :])
         if self.turned:
             g = self.groups()
@@ -121,7 +123,7 @@ def across_laminate(K_target, direction, sigma, thickness_of, layers, s_min, s_m
     from pipeline.layout.curvature import crossing
     K = np.asarray(K_target, dtype=float)
     d = np.asarray(direction, dtype=float)
-    e = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    e = quarter_turn(d)
     k_along = np.einsum("mi,mij,mj->m", d, K, d)
     k_across = np.einsum("mi,mij,mj->m", e, K, e)
     lever = levers(layers)

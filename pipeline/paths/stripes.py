@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from pipeline.geometry import hat_gradients, signed_areas_2d, unique_edges
+from pipeline.geometry import hat_gradients, quarter_turn, signed_areas_2d, unique_edges
 from pipeline.paths.ends import REACH
 
 
@@ -265,7 +265,7 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
     branch before a fork), the bare area (mm2))."""
     d = np.asarray(direction, dtype=float)
     xy = np.asarray(xy, dtype=float)
-    normal = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    normal = quarter_turn(d)
     phase, X, width_mm = stripe_phase_at_width(xy, faces, normal, width_mm, WIDTH_TOL)
     if refine:
         from pipeline.paths.refine import refine_phase

@@ -75,7 +75,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
                               tensor_rest(flat.xy, mesh.faces, (A + B) / 2), thick,
                               theta_rest=prog.theta_rest, pop=BATH_BUMP, **kw)
 
-    program = programmed(0.0)
+    program = bilayer = programmed(0.0)
     sim = settle(program)
     # Crossed groups need an even layer count: a middle layer printed with either group
     # would shear the sheet's mean shrink by twist / (2 * layers).
@@ -92,7 +92,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
         lam = across_laminate(K, flat.direction, sigma, lambda s: thickness(s) / profile.layers,
                               profile.layers, lim.s_min, lim.s_max, cp.bilayer_c,
                               turn_max_deg=turn if twist else 0.0)
-        stack = _across_program(programmed(0.0), lam, flat, mesh.faces, cp.bilayer_c)
+        stack = _across_program(bilayer, lam, flat, mesh.faces, cp.bilayer_c)
         metric = lam.metric(flat.direction)
 
         def settle_across(**kw):
