@@ -373,6 +373,15 @@ def _json_ready(d):
     return d
 
 
+def _curvature_report(program, cp):
+    """The report's ``curvature``: the program's, with the constants it was made with."""
+    out = dict(program.report(), bilayer_c=cp.bilayer_c, bilayer_c_status=cp.status)
+    if "across" in out:
+        out["across"] = dict(out["across"], c_across=cp.across_constant,
+                             across_status=cp.across_status)
+    return out
+
+
 def _report(path, profile, p, vrep, srep, timing):
     hf, mesh, flat, sim = p.hf, p.mesh, p.flat, p.sim
     extent = np.ptp(flat.xy, axis=0)
@@ -420,8 +429,7 @@ def _report(path, profile, p, vrep, srep, timing):
                                                ("across", p.across_toolpaths))
             if paths is not None})),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
-        **({"curvature": dict(p.curvature.report(), bilayer_c=profile.curvature.bilayer_c,
-                              bilayer_c_status=profile.curvature.status)}
+        **({"curvature": _curvature_report(p.curvature, profile.curvature)}
            if p.curvature is not None else {}),
         **({"fit": p.fit.report()} if p.fit is not None else {}),
         "printable": p.printable,

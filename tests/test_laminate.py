@@ -81,6 +81,49 @@ def test_the_stack_programs_the_target_in_both_directions_and_keeps_the_metric_a
     assert np.allclose(lam.thickness_mm, layer_mm(s.ravel()).reshape(s.shape).sum(axis=1))
 
 
+def test_the_layers_across_curl_with_their_own_constant():
+    """The layers across carry ``c_across``, those along ``c``: doubling the one doubles
+    the curvature across d and leaves it along d, and the other way round; without
+    ``c_across`` both use ``c``."""
+    s = np.array([[0.2, 0.15, 0.2, 0.1, 0.02, 0.1]])
+    lam = Laminate(layer_sigma=s, across=np.array([False, True, False, False, True, False]),
+                   thickness_mm=np.array([1.5]))
+    base = lam.curvature(D, c=1.5, c_across=1.5)[0]
+    assert np.allclose(lam.curvature(D, c=1.5)[0], base)
+    assert base[0, 0] != 0 and base[1, 1] != 0
+    twice_across = lam.curvature(D, c=1.5, c_across=3.0)[0]
+    assert twice_across[1, 1] == pytest.approx(2 * base[1, 1])
+    assert twice_across[0, 0] == pytest.approx(base[0, 0])
+    twice_along = lam.curvature(D, c=3.0, c_across=1.5)[0]
+    assert twice_along[0, 0] == pytest.approx(2 * base[0, 0])
+    assert twice_along[1, 1] == pytest.approx(base[1, 1])
+
+
+def test_a_stronger_constant_across_programs_the_same_curvature_with_less_shrink():
+    """With ``c_across`` twice ``c`` the layers across shrink half as much above the
+    least shrink for the same curvature across d, the layers along d as before, and the
+    stack, modelled with both constants, still bends as the target."""
+    d = np.tile([1.0, 0.0], (2, 1))
+    K = np.array([np.diag([0.004, 0.006]), np.diag([-0.003, -0.004])])
+    sigma = np.array([0.12, 0.1])
+    lim = PROFILE.shrink_limits
+
+    def layer_mm(s):
+        return np.clip(PROFILE.shrink_curve.theta(np.asarray(s, float))[0],
+                       PROFILE.thickness_mm.min, PROFILE.thickness_mm.max)
+    same = across_laminate(K, d, sigma, layer_mm, 6, lim.s_min, lim.s_max, c=1.5)
+    strong = across_laminate(K, d, sigma, layer_mm, 6, lim.s_min, lim.s_max, c=1.5,
+                             c_across=3.0)
+    assert np.allclose(strong.curvature(d, c=1.5, c_across=3.0), K, atol=2e-4)
+    cross = np.flatnonzero(strong.across)
+    more = same.layer_sigma[:, cross] - lim.s_min
+    # The thickness follows the shrink, so half the shrink is only nearly half the curl.
+    assert np.allclose(strong.layer_sigma[:, cross] - lim.s_min, more / 2, rtol=0.05,
+                       atol=1e-6)
+    assert np.allclose(strong.layer_sigma[:, ~strong.across], same.layer_sigma[:, ~same.across],
+                       rtol=0.05)
+
+
 def small_terrain():
     """A 60 x 45 mm terrain tile, 12.5 mm of relief, laid out as the plan does."""
     hf = shapes.terrain_tile(width_mm=60.0, depth_mm=45.0, height_mm=12.5)
@@ -153,6 +196,9 @@ def test_a_terrain_plan_prints_two_layers_on_paths_across_its_own(tmp_path):
     plan = planner.run(tmp_path / "t.npy", PROFILE, tmp_path / "out")
     r = plan.report
     assert r["curvature"]["across"]["kept"] and plan.across_toolpaths is not None
+    # The constant the layers across were programmed with, and whether it was measured.
+    assert (r["curvature"]["across"]["c_across"], r["curvature"]["across"]["across_status"]) \
+        == (PROFILE.curvature.bilayer_c, "uncalibrated")
     across = r["toolpath"]["across"]
     # Stripes follow a field only as far as it is a gradient's turned by a quarter: the
     # across paths meet d's divergence where the plan's meet its curl (10 degrees here).

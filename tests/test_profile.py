@@ -103,6 +103,17 @@ def test_omitted_sections_take_defaults(tmp_path):
     assert p.defaults.size_mm == 150.0 and p.extrusion == "relative"
 
 
+def test_the_constant_across_is_the_bilayers_until_it_is_set(tmp_path):
+    data = _minimal()
+    data["curvature"] = {"bilayer_c": 2.0, "across_c": None}
+    cp = load_profile(_write(tmp_path, data)).curvature
+    assert cp.across_c is None and cp.across_constant == 2.0
+    assert cp.across_status == "uncalibrated"
+    data["curvature"] = {"bilayer_c": 2.0, "across_c": 1.2, "across_status": "measured"}
+    cp = load_profile(_write(tmp_path, data)).curvature
+    assert cp.across_constant == 1.2 and cp.across_status == "measured"
+
+
 @pytest.mark.parametrize("target", ["missing-profile-name", "no/such/file.yaml"])
 def test_missing_profile(target, tmp_path):
     with pytest.raises(InvalidProfile) as e:
@@ -168,6 +179,10 @@ def test_missing_required_key(tmp_path, key):
     ("thickness_mm", {"min": 0.1, "max": 0.8}, "profile.value"),
     ("shrink_limits", {"s_min": 0.3, "s_max": 0.2}, "profile.value"),
     ("gcode", {"start": "M104 S{nozzle_temp}"}, "profile.value"),
+    ("curvature", {"across_c": "same"}, "profile.type"),
+    ("curvature", {"across_c": 0}, "profile.value"),
+    ("curvature", {"across_status": "guessed"}, "profile.value"),
+    ("curvature", {"bilayer_c": None}, "profile.type"),
 ])
 def test_bad_values(tmp_path, key, value, code):
     data = _minimal()

@@ -12,9 +12,12 @@ along ``d``, the bilayer along it and the twist, as the two layer groups do.
 The sheet is modelled as a stack of equal-weight layers (the bilayer's convention: the
 program's constant ``c`` is calibrated on such a stack), each shrinking by ``s_i``
 along its own direction ``n_i``: the mean shrink is ``sum_i s_i n_i n_i^T / N`` and the
-natural curvature ``(c / 1.5) * 6 / (N^2 h) * sum_i (N + 1 - 2 i) s_i n_i n_i^T`` (a
+natural curvature ``(c_i / 1.5) * 6 / (N^2 h) * sum_i (N + 1 - 2 i) s_i n_i n_i^T`` (a
 layer below the middle that shrinks curls the sheet away from the bed). For two equal
-groups along ``d`` this is the bilayer's ``c * (s_bottom - s_top) / h``.
+groups along ``d`` this is the bilayer's ``c * (s_bottom - s_top) / h``. The constant
+``c_i`` is the bilayer's ``c`` for the layers along ``d`` and ``c_across`` for those
+across, each calibrated on strips of its own layers (:mod:`pipeline.profiles.bilayer`,
+:mod:`pipeline.profiles.across`).
 
 The cost: the layers across shrink nothing along ``d``, so the metric along ``d`` has
 ``(N - 2) / N`` of the shrink range; the one that shrinks shrinks the sheet a little
@@ -94,11 +97,17 @@ class Laminate:
         """Mean shrink tensor (m, 2, 2) in the layout: the sheet's metric after the bath."""
         return self._tensors(direction).mean(axis=1)
 
-    def curvature(self, direction, c):
-        """Natural curvature tensor (m, 2, 2) 1/mm in the layout (positive: a dome)."""
+    def curvature(self, direction, c, c_across=None):
+        """Natural curvature tensor (m, 2, 2) 1/mm in the layout (positive: a dome): the
+        layers along ``d`` with the constant ``c``, those across with ``c_across``
+        (default ``c``)."""
         N = self.layer_sigma.shape[1]
-        unit = curvature_per_lever(self.thickness_mm, N, c)
-        return unit[:, None, None] * np.einsum("l,mlij->mij", levers(N), self._tensors(direction))
+        # Each layer's own constant: the layers across are calibrated on strips of
+        # their own (`hostd calibrate across`), and need not curl as a bilayer does.
+        per_layer = np.where(self.across, c if c_across is None else c_across, c)
+        unit = curvature_per_lever(self.thickness_mm, N, 1.0)
+        return unit[:, None, None] * np.einsum("l,mlij->mij", levers(N) * per_layer,
+                                               self._tensors(direction))
 
     def report(self):
         """The report's ``curvature.across``: which layers, how much they shrink, where."""
@@ -109,7 +118,7 @@ class Laminate:
 
 
 def across_laminate(K_target, direction, sigma, thickness_of, layers, s_min, s_max, c,
-                    across=None, turn_max_deg=0.0):
+                    across=None, turn_max_deg=0.0, c_across=None):
     """The stack whose layers across ``d`` program the target's curvature across it.
 
     K_target : (m, 2, 2) 1/mm, the target's curvature in the layout frame
@@ -117,7 +126,8 @@ def across_laminate(K_target, direction, sigma, thickness_of, layers, s_min, s_m
     sigma : (m,) the layout's shrink along ``d``; thickness_of : callable, (k,) shrink
     -> (k,) one layer's printed thickness mm; layers : N >= 4; across : (N,) bool, the
     layers across ``d`` (default :func:`across_layers`); with ``turn_max_deg`` > 0 the two halves
-    of the layers along ``d`` also turn apart for the target's twist.
+    of the layers along ``d`` also turn apart for the target's twist; ``c`` the constant
+    of the layers along ``d``, ``c_across`` that of the layers across (default ``c``).
     Returns :class:`Laminate`.
     """
     from pipeline.layout.curvature import crossing
@@ -142,8 +152,9 @@ def across_laminate(K_target, direction, sigma, thickness_of, layers, s_min, s_m
     # per cent of the curvature.
     for _ in range(3):
         unit = curvature_per_lever(h, layers, c)
+        unit_across = curvature_per_lever(h, layers, c if c_across is None else c_across)
         delta = np.clip(k_along / (unit * np.sum(lever[~across] * half)), -room, room)
-        shrink = np.clip(np.abs(k_across) / (unit * lever[lo]) + s_min, s_min, s_max)
+        shrink = np.clip(np.abs(k_across) / (unit_across * lever[lo]) + s_min, s_min, s_max)
         s[:, ~across] = mean[:, None] + delta[:, None] * half[None, :]
         s[:, lo] = np.where(k_across > 0, shrink, s_min)
         s[:, hi] = np.where(k_across < 0, shrink, s_min)

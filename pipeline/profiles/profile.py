@@ -34,10 +34,12 @@ GCODE_PLACEHOLDERS = ("hotend_c", "bed_c", "bed_x_mm", "bed_y_mm", "max_z_mm", "
                       "travel_f", "print_f", "first_layer_f", "e_mode")
 
 
-def _num(default=MISSING, lo=0.0, strict=True, hi=None, integer=False):
-    """A numeric field: ``lo < v`` (``lo <= v`` if not strict), ``v <= hi``."""
+def _num(default=MISSING, lo=0.0, strict=True, hi=None, integer=False, nullable=False):
+    """A numeric field: ``lo < v`` (``lo <= v`` if not strict), ``v <= hi``; with
+    ``nullable``, also null (None), which the field's reader gives a meaning."""
     kind = "int" if integer else "float"
-    return field(default=default, metadata={"kind": kind, "lo": lo, "strict": strict, "hi": hi})
+    return field(default=default, metadata={"kind": kind, "lo": lo, "strict": strict, "hi": hi,
+                                            "nullable": nullable})
 
 
 def _str(default=MISSING, choices=None, multiline=False):
@@ -150,7 +152,8 @@ class ToolpathParams:
 
 @dataclass(frozen=True)
 class CurvatureParams:
-    """The bilayer's constant: ``kappa = bilayer_c * (sigma_bottom - sigma_top) / h``."""
+    """The bilayer's constant: ``kappa = bilayer_c * (sigma_bottom - sigma_top) / h``, and
+    the layers across the paths' (:mod:`pipeline.layout.laminate`)."""
     # Timoshenko's bilayer of two equal layers of one material; `hostd calibrate
     # bilayer-fit` measures the printer's own and marks it `measured`.
     bilayer_c: float = _num(1.5, hi=20.0)
@@ -164,6 +167,17 @@ class CurvatureParams:
     # Two layers printed across the paths to program the curvature across
     # them: `auto` tries it and keeps it where the sheet then rests closer, `off` never.
     across_layers: str = _str("auto", choices=("auto", "off"))
+    # The constant of those two layers, which curl the sheet from inside the stack on
+    # paths of their own: null until `hostd calibrate across-fit` measures it, and then
+    # the bilayer's is the best guess (a measured `bilayer_c` carries over).
+    across_c: float = _num(None, hi=20.0, nullable=True)
+    across_status: str = _str("uncalibrated", choices=("uncalibrated", "measured"))
+
+    @property
+    def across_constant(self):
+        """The constant the layers across are programmed with: ``across_c``, else
+        ``bilayer_c``."""
+        return self.bilayer_c if self.across_c is None else self.across_c
 
 
 @dataclass(frozen=True)
@@ -293,13 +307,16 @@ def _check_value(value, f, key, src):
             raise _err("%s must be one of %s" % (key, ", ".join(m["choices"])),
                        "profile.value", src, key, "use one of " + ", ".join(m["choices"]))
         return value
+    if value is None and m.get("nullable"):
+        return None
     is_int = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
     is_num = is_int or (isinstance(value, (float, np.floating)) and not isinstance(value, bool))
     if kind == "int" and not is_int:
         raise _err("%s must be an integer, %s" % (key, _got(value)), "profile.type", src, key,
                    "write a whole number without a decimal point")
     if not is_num:
-        raise _err("%s must be a number, %s" % (key, _got(value)), "profile.type", src, key,
+        raise _err("%s must be a number%s, %s" % (key, " or null" if m.get("nullable") else "",
+                                                  _got(value)), "profile.type", src, key,
                    "write a plain number (YAML reads 1e-3 as text; write 0.001)")
     v = int(value) if kind == "int" else float(value)
     lo, hi = m["lo"], m["hi"]

@@ -91,8 +91,10 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
     if across and cp.across_layers == "auto" and profile.layers >= 4:
         lam = across_laminate(K, flat.direction, sigma, lambda s: thickness(s) / profile.layers,
                               profile.layers, lim.s_min, lim.s_max, cp.bilayer_c,
-                              turn_max_deg=turn if twist else 0.0)
-        stack = _across_program(bilayer, lam, flat, mesh.faces, cp.bilayer_c)
+                              turn_max_deg=turn if twist else 0.0,
+                              c_across=cp.across_c or cp.bilayer_c)
+        stack = _across_program(bilayer, lam, flat, mesh.faces, cp.bilayer_c,
+                                c_across=cp.across_c or cp.bilayer_c)
         metric = lam.metric(flat.direction)
 
         def settle_across(**kw):
@@ -124,7 +126,7 @@ def _tried(program, sim, other, settle, gain=TWIST_GAIN):
     return ((other, tried) if kept else (program, sim)), comparison
 
 
-def _across_program(bilayer, lam, flat, faces, c):
+def _across_program(bilayer, lam, flat, faces, c, c_across=None):
     """``bilayer`` (the program along ``d``) with its layers as the laminate ``lam``
     prints them: the inner layers' bilayer along ``d``, the rest angles of the whole
     stack's curvature, ``lam`` attached."""
@@ -132,7 +134,7 @@ def _across_program(bilayer, lam, flat, faces, c):
     d = np.asarray(flat.direction, dtype=float)
     inner = lam.layer_sigma[:, ~lam.across]
     half = inner.shape[1] // 2
-    K = lam.curvature(d, c)
+    K = lam.curvature(d, c, c_across=c_across)
     zero = np.zeros(len(d))
     return dataclasses.replace(
         bilayer, delta_sigma=inner[:, :half].mean(axis=1) - inner[:, half:].mean(axis=1),
