@@ -5,6 +5,10 @@ parallel paths at evenly spaced layer thicknesses, a layout SVG naming each one
 and a CSV to fill in after the hot-water bath; ``hostd calibrate fit
 MEASURED.csv --profile P -o NEW.yaml`` fits the measurements and writes an
 updated copy of the profile (never the original).
+
+``bilayer`` / ``bilayer-fit`` and ``across`` / ``across-fit`` do the same for the
+curvature program's constants: strips that curl, their rise over a chord measured with
+a ruler (:mod:`pipeline.profiles.bilayer`, :mod:`pipeline.profiles.across`).
 """
 
 import datetime
@@ -15,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import __version__
-from pipeline.profiles import bilayer
+from pipeline.profiles import across, bilayer
 from pipeline.profiles.calibration import (COLUMNS, CalibrationError, calibration_traces, fit_measurements,
                                   layout_plates, layout_svg, measurements_template,
                                   read_measurements, thickness_values)
@@ -67,6 +71,25 @@ def add_parser(subparsers):
     bf.add_argument("measured", metavar="BILAYER.csv")
     _common(bf)
     bf.set_defaults(func=run_bilayer_fit)
+    a = sub.add_parser("across", help="write G-code for strips of the layers across the paths "
+                                      "and a CSV template",
+                       description="Write DIR/across.gcode: strips whose second and second-last "
+                                   "layers print along them, thinner and thicker by a few "
+                                   "differences (one with none), and every other layer across "
+                                   "them; DIR/across_layout.svg and DIR/across.csv.")
+    _common(a, "across.csv")
+    a.add_argument("--values", type=int, default=5, help="thickness differences (default 5)")
+    a.add_argument("--repeats", type=int, default=2, help="strips per difference (default 2)")
+    a.set_defaults(func=run_across)
+    af = sub.add_parser("across-fit", help="fit the constant of the layers across from measured "
+                                           "strips",
+                        description="Fit c_across of kappa = c_across * 4 (N - 3) / N^2 * "
+                                    "(sigma_2 - sigma_N-1) / h to the measured curl of the "
+                                    "strips and write an updated copy of the profile with it "
+                                    "(curvature.across_c).")
+    af.add_argument("measured", metavar="ACROSS.csv")
+    _common(af)
+    af.set_defaults(func=run_across_fit)
     parser.set_defaults(func=lambda args: _usage(parser))
     return parser
 
@@ -255,40 +278,67 @@ def _report(rows, fit, trange, new):
 
 
 def run_bilayer(args):
+    return _run_strips(args, "bilayer")
+
+
+def run_across(args):
+    return _run_strips(args, "across")
+
+
+def _run_strips(args, kind):
+    """Write the ``kind`` (``bilayer`` or ``across``) strips' G-code, layout and CSV."""
     try:
         profile = load_profile(args.profile)
         out = Path(args.out)
-        csv_path = out / "bilayer.csv"
+        csv_path = out / (kind + ".csv")
         if csv_path.exists() and not args.force and any(
                 s.chord_mm for s in _measured_or_none(csv_path)):
             raise CalibrationError(
                 "%s already holds measurements" % csv_path, code="calibration.would_overwrite",
                 file=csv_path, fix="use another -o DIR, or --force to start over")
-        pairs = bilayer.thickness_pairs(profile.shrink_curve, profile.layers,
-                                        profile.thickness_mm.min, profile.thickness_mm.max,
-                                        args.values, c=profile.curvature.bilayer_c)
+        t_range = (profile.thickness_mm.min, profile.thickness_mm.max)
+        cp, others, extra = profile.curvature, (), []
+        if kind == "bilayer":
+            pairs = bilayer.thickness_pairs(profile.shrink_curve, profile.layers, *t_range,
+                                            args.values, c=cp.bilayer_c)
+        else:
+            pairs = across.thickness_pairs(profile.shrink_curve, profile.layers, *t_range,
+                                           args.values, c=cp.across_constant)
         plates, pair_of = bilayer.strips(pairs, args.repeats, profile.bed_mm)
         specimens = [s for plate in plates for s in plate]
-        traces, thetas, labels = bilayer.strip_traces(specimens, pair_of, profile.layers,
-                                                      profile.path_width_mm)
+        if kind == "bilayer":
+            traces, thetas, labels = bilayer.strip_traces(specimens, pair_of, profile.layers,
+                                                          profile.path_width_mm)
+            template = bilayer.template(specimens, pair_of, profile.name)
+        else:
+            middle = float(pairs[0][0])
+            (traces, thetas, labels), along = across.strip_traces(
+                specimens, pair_of, profile.layers, profile.path_width_mm, middle)
+            two = across.layer_numbers(profile.layers)
+            others = [(along[0], along[1], None, two, "across")]
+            extra = ["across strips: layers %d and %d along the %g mm side (a plan's layers "
+                     "across), the others across it at %g mm"
+                     % (two[0], two[1], across.LENGTH_MM, middle)]
+            template = across.template(specimens, pair_of, profile.name, profile.layers, middle)
         out.mkdir(parents=True, exist_ok=True)
         stats = write_thickness_gcode(
             traces, thetas, GcodeSettings.from_profile(profile, arc_tolerance_mm=0.0),
-            out / "bilayer.gcode", labels=labels, center=False,
-            name="bilayer strips, profile %s" % profile.name)
-        _write_atomic(out / "bilayer_layout.svg", layout_svg(
-            plates, profile.bed_mm, "hostd bilayer strips, profile %s" % profile.name))
-        _write_atomic(csv_path, bilayer.template(specimens, pair_of, profile.name))
+            out / (kind + ".gcode"), labels=labels, center=False, others=others,
+            name="%s strips, profile %s" % (kind, profile.name), header_extra=extra)
+        _write_atomic(out / (kind + "_layout.svg"), layout_svg(
+            plates, profile.bed_mm, "hostd %s strips, profile %s" % (kind, profile.name)))
+        _write_atomic(csv_path, template)
     except PipelineError as exc:
         return _fail(exc)
-    print("%d strips (bottom/top mm: %s) x %d repeats, estimated %.0f min"
-          % (len(pairs), ", ".join("%g/%g" % tuple(p) for p in pairs), args.repeats,
+    print("%d strips (%s mm: %s) x %d repeats, estimated %.0f min"
+          % (len(pairs), "bottom/top" if kind == "bilayer" else "layer %d/%d" % tuple(two),
+             ", ".join("%g/%g" % tuple(p) for p in pairs), args.repeats,
              stats["estimated_print_s"] / 60))
-    for name in ("bilayer.gcode", "bilayer_layout.svg", "bilayer.csv"):
+    for name in (kind + ".gcode", kind + "_layout.svg", kind + ".csv"):
         print("wrote %s" % (out / name))
     print("next: print, bathe, measure each strip's rise over its chord into %s, then\n"
-          "  hostd calibrate bilayer-fit %s --profile %s -o %s-bilayer.yaml"
-          % (csv_path, csv_path, args.profile, profile.name))
+          "  hostd calibrate %s-fit %s --profile %s -o %s-%s.yaml"
+          % (csv_path, kind, csv_path, args.profile, profile.name, kind))
     return 0
 
 
@@ -300,32 +350,50 @@ def _measured_or_none(csv_path):
 
 
 def run_bilayer_fit(args):
+    return _run_strips_fit(args, "bilayer")
+
+
+def run_across_fit(args):
+    return _run_strips_fit(args, "across")
+
+
+def _run_strips_fit(args, kind):
+    """Fit the constant of the ``kind`` strips and write the profile's copy with it."""
+    what = {"bilayer": "bilayer constant c", "across": "constant of the layers across "
+                                                       "c_across"}[kind]
     try:
         profile = load_profile(args.profile)
         new = _new_profile_path(profile, args)
         src = Path(args.measured)
-        strips = bilayer.read_strips(_read_text(src), source=str(src))
-        c, rms, pts = bilayer.fit_c(strips, profile.shrink_curve, profile.layers)
+        strips = bilayer.read_strips(_read_text(src), source=str(src), kind=kind)
+        if kind == "bilayer":
+            c, rms, pts = bilayer.fit_c(strips, profile.shrink_curve, profile.layers)
+            section = {"bilayer_c": round(c, 4), "status": "measured"}
+        else:
+            c, rms, pts = across.fit_c(strips, profile.shrink_curve, profile.layers)
+            section = {"across_c": round(c, 4), "across_status": "measured"}
         if not 0 < c <= 20:
-            raise CalibrationError("the strips give c = %.3g, which no bilayer has" % c,
+            raise CalibrationError("the strips give c = %.3g, which no %s strip has" % (c, kind),
                                    code="calibration.bad_fit", file=src,
                                    fix="check that rise_mm is measured on the curled side and "
                                        "that each row names its strip's thicknesses")
-        comment = ("hostd printer profile with the bilayer constant fitted by `hostd calibrate "
-                   "bilayer-fit` (hostd %s) on %s\nfrom %s (%d strips), starting from %s."
-                   % (__version__, datetime.date.today().isoformat(), src.name, len(strips),
-                      profile.source or profile.name))
+        comment = ("hostd printer profile with the %s fitted by `hostd calibrate %s-fit` (hostd %s) "
+                   "on %s\nfrom %s (%d strips), starting from %s."
+                   % (what, kind, __version__, datetime.date.today().isoformat(), src.name,
+                      len(strips), profile.source or profile.name))
         _write_atomic(new, profile_to_yaml(
             profile, comment=comment, name=new.stem if new.suffix in (".yaml", ".yml") else
-            new.name, curvature={"bilayer_c": round(c, 4), "status": "measured"}))
+            new.name, curvature=section))
     except PipelineError as exc:
         return _fail(exc)
-    print("%-9s %9s %9s %12s %12s" % ("specimen", "bottom", "top", "curl 1/mm", "fit 1/mm"))
+    print("%-9s %9s %9s %12s %12s" % ("specimen", "bottom_mm", "top_mm", "curl 1/mm",
+                                      "fit 1/mm"))
     for s, (x, k) in zip(strips, pts):
         print("%-9s %9g %9g %12.5f %12.5f" % (s.specimen, s.bottom_mm, s.top_mm, k, c * x))
-    print("bilayer constant c = %.3f (RMS residual %.5f 1/mm, %d strips)" % (c, rms, len(strips)))
+    print("%s = %.3f (RMS residual %.5f 1/mm, %d strips)" % (what, c, rms, len(strips)))
     print("wrote %s" % new)
     return 0
 
 
-__all__ = ["add_parser", "run_print", "run_fit", "run_bilayer", "run_bilayer_fit", "COLUMNS"]
+__all__ = ["add_parser", "run_print", "run_fit", "run_bilayer", "run_bilayer_fit", "run_across",
+           "run_across_fit", "COLUMNS"]

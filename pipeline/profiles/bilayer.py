@@ -21,17 +21,18 @@ WIDTH_MM = 10.0
 COLUMNS = ("specimen", "bottom_mm", "top_mm", "repeat", "chord_mm", "rise_mm")
 
 
-def thickness_pairs(shrink, layers, thickness_min_mm, thickness_max_mm, n=5, c=1.5):
+def thickness_pairs(shrink, layers, thickness_min_mm, thickness_max_mm, n=5, c=1.5, lever=1.0):
     """``n`` (bottom, top) layer thicknesses about the middle of the range, the first
     equal, the others with shrink differences evenly up to the one that curls a strip
     of constant ``c`` by 1.2 rad over its length: strips curl well short of a half turn
-    (a ruler measures them) even where the printer's constant is twice ``c``.
+    (a ruler measures them) even where the printer's constant is twice ``c``. ``lever``:
+    as in :func:`fit_c`, for strips whose thickness difference is in fewer layers.
     Returns (n, 2) mm, rounded to 1 um."""
     if n < 2:
         raise CalibrationError("need at least 2 strips, got %d" % n, code="calibration.values",
                                fix="use --values 2 or more")
     mid = 0.5 * (thickness_min_mm + thickness_max_mm)
-    wanted = np.linspace(0.0, 1.2 / LENGTH_MM * layers * mid / c, n)
+    wanted = np.linspace(0.0, 1.2 / LENGTH_MM * layers * mid / (c * lever), n)
     d = np.linspace(0.0, thickness_max_mm - thickness_min_mm, 2001)
     sb, st = shrink.sigma(mid - d / 2), shrink.sigma(mid + d / 2)
     diff = np.maximum.accumulate(sb - st)
@@ -106,14 +107,16 @@ class Strip:
                                                                           + self.top_mm))
 
 
-def read_strips(text, source=None):
-    """The measured rows of a filled-in bilayer CSV: [Strip]."""
+def read_strips(text, source=None, kind="bilayer"):
+    """The measured rows of a filled-in strips CSV (``kind``: ``bilayer`` or ``across``,
+    the command that wrote it): [Strip]."""
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     rows = list(csv.reader(lines))
     if not rows or tuple(c.strip() for c in rows[0]) != COLUMNS:
-        raise CalibrationError("not a bilayer measurements file (its header should be %s)"
-                               % ",".join(COLUMNS), code="calibration.bad_header", file=source,
-                               fix="give the bilayer.csv written by `hostd calibrate bilayer`")
+        raise CalibrationError("not a %s measurements file (its header should be %s)"
+                               % (kind, ",".join(COLUMNS)), code="calibration.bad_header",
+                               file=source, fix="give the %s.csv written by `hostd calibrate "
+                                                "%s`" % (kind, kind))
     out = []
     for n, row in enumerate(rows[1:], start=2):
         cells = [c.strip() for c in row]
@@ -135,17 +138,20 @@ def read_strips(text, source=None):
     return out
 
 
-def fit_c(measured, shrink, layers):
-    """``c`` of ``kappa = c * (sigma_bottom - sigma_top) / h`` through the origin.
+def fit_c(measured, shrink, layers, lever=1.0):
+    """``c`` of ``kappa = c * lever * (sigma_bottom - sigma_top) / h`` through the origin.
 
-    measured : [Strip]; shrink : the profile's ShrinkCurve; layers : layer count.
+    measured : [Strip]; shrink : the profile's ShrinkCurve; layers : layer count;
+    lever : the curl of the strip's layers that differ against a bilayer's of the same
+    difference (1 for bilayer strips, whose lower and upper halves differ; less for
+    strips where only two layers do, :func:`pipeline.profiles.across.lever`).
     Returns (c, rms residual in 1/mm, [(x, kappa)] the points fitted).
     """
     pts = []
     for s in measured:
         sb, st = (float(v) for v in shrink.sigma(np.array([s.bottom_mm, s.top_mm])))
         h = layers * 0.5 * (s.bottom_mm + s.top_mm)          # printed thickness
-        pts.append(((sb - st) / h, s.curvature(layers)))
+        pts.append((lever * (sb - st) / h, s.curvature(layers)))
     x = np.array([p[0] for p in pts])
     k = np.array([p[1] for p in pts])
     if np.count_nonzero(np.abs(x) > 1e-9) < 2:
