@@ -92,9 +92,9 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
         lam = across_laminate(K, flat.direction, sigma, lambda s: thickness(s) / profile.layers,
                               profile.layers, lim.s_min, lim.s_max, cp.bilayer_c,
                               turn_max_deg=turn if twist else 0.0,
-                              c_across=cp.across_c or cp.bilayer_c)
+                              c_across=cp.across_constant)
         stack = _across_program(bilayer, lam, flat, mesh.faces, cp.bilayer_c,
-                                c_across=cp.across_c or cp.bilayer_c)
+                                c_across=cp.across_constant)
         metric = lam.metric(flat.direction)
 
         def settle_across(**kw):
