@@ -23,6 +23,7 @@ from pipeline.geometry import quarter_turn
 from pipeline.layout import curvature
 from pipeline.layout.fit import fit_height, scaled
 from pipeline.layout.free import FREE_BELOW, flatten_free
+from pipeline.layout.reach import reach
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
@@ -57,6 +58,7 @@ class Plan:
     across_toolpaths: object = None
     simplified: dict = field(default_factory=dict)
     curvature: object = None
+    reach: dict = None
     fit: object = None
     inverted: dict = None
     validated: object = None
@@ -238,24 +240,43 @@ def _height_asked(sidecar):
 
 
 def _fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
-    """Lower the relief to what forms when nobody asked for a height (it came from the
-    profile's defaults or the file's own units) and the sidecar allows it."""
+    """Make the relief form when nobody asked for a height (it came from the profile's
+    defaults or the file's own units) and the sidecar allows it: smoothed where that
+    forms the relief as given (``fit: auto``), else lowered."""
     mode = (sidecar.fit if sidecar is not None else None) or "auto"
     if not force and (mode == "off" or _height_asked(sidecar)):
         return hf
     t = stage("fit", "how high the sheet can rise")
-    result.fit = _fit(result, hf, profile, opts)
+    result.fit = _fit(result, hf, profile, opts, smooth_first=mode != "relief")
     timing["fit"] = time.perf_counter() - t
-    if result.fit.applied_scale < 1.0:
+    fit = result.fit
+    if fit.applied_smooth_mm is not None:
+        smoothed = _resmooth(result, opts)(fit.applied_smooth_mm)
+        fit.removed_mm = float(np.nanmean(np.abs(smoothed.z - hf.z)))
+        # The looks that follow (the hold) start from the smoothing applied.
+        opts["smooth_mm"] = fit.applied_smooth_mm
+        result.problems.append({
+            "code": "fit.smoothed",
+            "message": "smoothed %g mm, keeping the relief (%.1f mm): %s; the smoothing "
+                       "moves the surface by %.2f mm on average" % (
+                           fit.applied_smooth_mm, fit.max_height_mm, fit.reason,
+                           fit.removed_mm),
+            "fix": "nothing to do; to keep the narrow features write `fit: relief` in the "
+                   "sidecar (the relief is lowered instead, and the sheet misses them) or "
+                   "`fit: off`"})
+        return smoothed
+    if fit.applied_scale < 1.0:
         result.problems.append({
             "code": "fit.lowered",
             "message": "the relief was lowered from %.1f to %.1f mm (%.0f %%): %s" % (
-                result.fit.requested_height_mm, result.fit.max_height_mm,
-                100 * result.fit.applied_scale, result.fit.reason),
+                fit.requested_height_mm, fit.max_height_mm, 100 * fit.applied_scale,
+                fit.reason),
             "fix": "nothing to do; to plan the full relief anyway write `fit: off` in the "
                    "sidecar, or ask for a height there (%s)%s" % (
-                       result.fit.sidecar_line(), result.fit.smoothing_advice())})
-        return scaled(hf, result.fit.applied_scale)
+                       fit.sidecar_line(), fit.smoothing_advice())})
+        lowered = scaled(hf, fit.applied_scale)
+        fit.removed_mm = float(np.nanmean(np.abs(lowered.z - hf.z)))
+        return lowered
     return hf
 
 
@@ -288,21 +309,29 @@ def _asked(fit):
     return "%.1f mm; %.1f mm once smoothed" % (asked, planned)
 
 
-def _fit(result, hf, profile, opts):
+def _fit(result, hf, profile, opts, smooth_first=False):
     """The fit of ``hf``, both levers: the relief, and the smoothing of the input as
-    validated (``result.validated``) that would form it at full height."""
+    validated (``result.validated``) that would form it at full height, within the
+    stack's curvature reach; ``smooth_first`` applies the smoothing where one forms."""
     lim = profile.shrink_limits
     fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
                      fine_mm=profile.mesh.grid_mm,
                      fine_iterations=profile.flatten.free_iterations,
-                     resmooth=lambda s: simplify(result.validated, opts["min_prominence_mm"],
-                                                 s)[0])
+                     resmooth=_resmooth(result, opts),
+                     reach_of=lambda field, mesh, flat: reach(field, mesh, flat, profile),
+                     smooth_first=smooth_first)
     # A sidecar's height_mm sets the input's highest point, before the smoothing that
     # lowers the peaks: its line must ask for more than the relief that forms.
     top = float(np.nanmax(result.input_hf.z))
     if fit.requested_height_mm > 0 and top > 0:
         fit.sidecar_per_mm = top / fit.requested_height_mm
     return fit
+
+
+def _resmooth(result, opts):
+    """The input as validated, smoothed ``smooth_mm`` instead of the sidecar's amount."""
+    return lambda smooth_mm: simplify(result.validated, opts["min_prominence_mm"],
+                                      smooth_mm)[0]
 
 
 def _free_sheet(result, hf, profile, stage, timing):
@@ -325,6 +354,7 @@ def _free_sheet(result, hf, profile, stage, timing):
     # direction free, the paths turn the way the target bends most.
     flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
     result.flat = flat
+    result.reach = reach(hf, mesh, flat, profile)
     timing["flatten"] = time.perf_counter() - t
     result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
     result.problems += free_layout_problems(flat, result.fold_fraction)
@@ -373,9 +403,11 @@ def _json_ready(d):
     return d
 
 
-def _curvature_report(program, cp):
-    """The report's ``curvature``: the program's, with the constants it was made with."""
-    out = dict(program.report(), bilayer_c=cp.bilayer_c, bilayer_c_status=cp.status)
+def _curvature_report(program, cp, reach_report=None):
+    """The report's ``curvature``: the program's, with the constants it was made with and
+    how far the target bends against the most the stack can curl (``reach``)."""
+    out = dict(program.report(), bilayer_c=cp.bilayer_c, bilayer_c_status=cp.status,
+               **({"reach": reach_report} if reach_report is not None else {}))
     if "across" in out:
         out["across"] = dict(out["across"], c_across=cp.across_constant,
                              across_status=cp.across_status)
@@ -429,7 +461,7 @@ def _report(path, profile, p, vrep, srep, timing):
                                                ("across", p.across_toolpaths))
             if paths is not None})),
         "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
-        **({"curvature": _curvature_report(p.curvature, profile.curvature)}
+        **({"curvature": _curvature_report(p.curvature, profile.curvature, p.reach)}
            if p.curvature is not None else {}),
         **({"fit": p.fit.report()} if p.fit is not None else {}),
         "printable": p.printable,

@@ -131,21 +131,81 @@ def _hill_with_a_spike(px=0.5):
     return HeightField(z, px, source="spike")
 
 
-def test_a_narrow_spike_is_offered_the_smoothing_that_forms_the_full_relief(tmp_path):
-    """The second lever: the least smoothing at which the relief as given forms is
-    reported and named in the fix, beside the lowered height."""
+def _spike_plan(tmp_path, sidecar=""):
     hf = _hill_with_a_spike()
     np.save(tmp_path / "spike.npy", hf.z)
-    (tmp_path / "spike.yaml").write_text("pixel_mm: %r\nsmooth_mm: 0.5\n" % hf.pixel_mm)
-    plan = planner.run(tmp_path / "spike.npy", FREE, tmp_path / "out")
+    (tmp_path / "spike.yaml").write_text("pixel_mm: %r\nsmooth_mm: 0.5\n%s" % (hf.pixel_mm,
+                                                                            sidecar))
+    return planner.run(tmp_path / "spike.npy", FREE, tmp_path / "out")
+
+
+def test_a_narrow_spike_is_smoothed_and_the_relief_kept(tmp_path):
+    """The second lever comes first where nobody asked for a height: the least smoothing
+    at which the relief as given lays out and lies within reach is applied, the relief
+    is not lowered, and the warning says how far the smoothing moved the surface."""
+    plan = _spike_plan(tmp_path)
     fit = plan.report["fit"]
-    assert fit["applied_scale"] < 1.0
+    assert fit["applied_scale"] == 1.0
+    assert fit["applied_smooth_mm"] == fit["min_smooth_mm"] and fit["min_smooth_mm"] <= 5.0
+    areas = {s: a for s, a, _ in fit["smooth_tried"]}
+    reach = dict(fit["smooth_reach"])
+    assert areas[fit["min_smooth_mm"]] <= 0.02 and reach[fit["min_smooth_mm"]] <= 0.4
+    assert all(areas[s] > 0.02 or reach[s] > 0.4 for s in areas if s < fit["min_smooth_mm"])
+    assert plan.report["flatten"]["invalid_area_fraction"] <= 0.02
+    # The plan's field is the input smoothed that much: lower peaks, same hill.
+    relief = float(np.nanmax(plan.hf.z) - np.nanmin(plan.hf.z))
+    assert relief == pytest.approx(fit["max_height_mm"], abs=0.01)
+    assert fit["removed_mm"] > 0
+    [smoothed] = [p for p in plan.problems if p["code"] == "fit.smoothed"]
+    assert "smoothed %g mm" % fit["applied_smooth_mm"] in smoothed["message"]
+    assert "fit: relief" in smoothed["fix"]
+    assert "fit.lowered" not in [p["code"] for p in plan.problems]
+
+
+def test_fit_relief_lowers_the_spike_and_offers_the_smoothing(tmp_path):
+    """``fit: relief`` keeps the first lever only: the relief is lowered and the least
+    smoothing that would form it at full height is named in the fix."""
+    plan = _spike_plan(tmp_path, "fit: relief\n")
+    fit = plan.report["fit"]
+    assert fit["applied_scale"] < 1.0 and fit["applied_smooth_mm"] is None
     assert fit["min_smooth_mm"] is not None and fit["min_smooth_mm"] <= 5.0
     areas = {s: a for s, a, _ in fit["smooth_tried"]}
     assert areas[fit["min_smooth_mm"]] <= 0.02
-    assert all(a > 0.02 for s, a in areas.items() if s < fit["min_smooth_mm"])
     [lowered] = [p for p in plan.problems if p["code"] == "fit.lowered"]
     assert "smooth_mm: %g" % fit["min_smooth_mm"] in lowered["fix"]
+    assert fit["removed_mm"] > 0
+
+
+def _ribs(amplitude_mm, px=0.5):
+    """A 90 mm square of ribs 6 mm apart, ``amplitude_mm`` high, on a gentle hill: slopes
+    any sheet lays out, curvature no sheet of a millimetre and more curls into."""
+    n = int(90 / px) + 1
+    y, x = np.mgrid[0:n, 0:n] * px
+    z = 4.0 * np.exp(-((x - 45) ** 2 + (y - 45) ** 2) / (2 * 25.0 ** 2))
+    z += amplitude_mm * np.sin(2 * np.pi * x / 6.0)
+    return HeightField(z, px, source="ribs")
+
+
+def test_ribs_that_lay_out_but_bend_beyond_reach_are_smoothed_away():
+    """The layout of the ribs forms as given; their curvature does not: the fit smooths
+    them (``fit: auto``), and with the first lever only keeps the relief as it is and
+    says why."""
+    from pipeline.layout.reach import reach
+    hf = _ribs(0.6)
+
+    def resmooth(s):
+        from pipeline.input.simplify import simplify
+        return simplify(hf, 0.0, s)[0]
+    reach_of = lambda field, mesh, flat: reach(field, mesh, flat, PROFILE)
+    auto = fit_height(hf, LIM.s_min, LIM.s_max, resmooth=resmooth, reach_of=reach_of,
+                      smooth_first=True)
+    assert auto.tried[0][1] <= 0.02                      # lays out as given
+    assert not auto.reach_given["within"] and auto.reach_given["p90"] > 1.0
+    assert auto.applied_smooth_mm is not None and auto.applied_scale == 1.0
+    assert dict(auto.smooth_reach)[auto.applied_smooth_mm] <= 0.4
+    relief_only = fit_height(hf, LIM.s_min, LIM.s_max, resmooth=resmooth, reach_of=reach_of)
+    assert relief_only.applied_scale == 1.0 and relief_only.applied_smooth_mm is None
+    assert relief_only.reason == "forms as given"
 
 
 @pytest.mark.parametrize("power,solves", [(1, 4), (4, 8)])
@@ -201,3 +261,16 @@ def test_plan_fit_prints_the_smoothing_solves_beside_the_scales(capsys):
     assert "smooth_mm" in out and "1.5        30.00 %" in out
     assert "4 solves in 3.0 s (1.0 s of them smoothing)" in out
     assert "forms with smooth_mm: 2" in out
+
+
+def test_plan_fit_prints_the_reach_and_the_smoothing_applied(capsys):
+    from hostd.commands.plan import _print_fit
+    _print_fit({"tried": [[1.0, 0.3, 0]], "smooth_tried": [[2.0, 0.05, 0], [4.0, 0.0, 0]],
+                "smooth_reach": [[4.0, 0.31]], "reach_given": {"p90": 1.52, "within": False},
+                "min_smooth_mm": 4.0, "applied_smooth_mm": 4.0, "removed_mm": 2.5,
+                "max_height_mm": 9.0, "requested_height_mm": 10.0, "applied_scale": 1.0,
+                "solves": 1, "seconds": 2.0, "smooth_seconds": 1.0, "reason": "steep"})
+    out = capsys.readouterr().out
+    assert "reach p90" in out and "1.52" in out and "0.31" in out
+    assert "applied: smooth_mm 4 at the relief as given; it moves the surface by 2.50 mm" in out
+    assert "1.52 of the most the layers can curl" in out and "do not form" in out

@@ -10,14 +10,25 @@ from pipeline.plan import plan_file
 from pipeline.profiles.profile import load_profile
 
 
-def _ridged(tmp_path, extra=""):
+def _ridged(tmp_path, extra="", fit="relief"):
     # Ridges a few mm across on a 60 mm starfish: the sheet rises as one smooth hill.
+    # With `fit: relief` the fit does not smooth them away by itself: the look is asked.
     hf = shapes.starfish_ridged(diameter_mm=60.0, height_mm=12.0)
     path = tmp_path / "ridged.npy"
     np.save(path, hf.z)
-    path.with_name("ridged.yaml").write_text("pixel_mm: %r\nmethod: free\n%s"
-                                              % (float(hf.pixel_mm), extra))
+    path.with_name("ridged.yaml").write_text("pixel_mm: %r\nmethod: free\nfit: %s\n%s"
+                                              % (float(hf.pixel_mm), fit, extra))
     return path
+
+
+def test_ridges_nobody_asked_a_height_for_are_smoothed_until_the_sheet_holds(tmp_path):
+    """``fit: auto``: the fit smooths the ridges the stack cannot curl into, and the
+    sheet then holds its shape without a look."""
+    r = plan_file(_ridged(tmp_path, fit="auto"), load_profile("generic-0.5mm")).report
+    assert r["fit"]["applied_smooth_mm"] is not None and not r["fit"]["reach_given"]["within"]
+    assert r["curvature"]["reach"]["within"]
+    assert r["printable"], r["gate"]
+    assert "hold" not in r
 
 
 def test_a_sheet_that_does_not_hold_is_offered_the_smoothing_that_does(tmp_path):

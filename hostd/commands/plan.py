@@ -57,13 +57,17 @@ def _method(args):
 
 
 def _print_fit(fit):
-    print("relief scale  invalid area  flipped")
+    given = fit.get("reach_given")
+    print("relief scale  invalid area  flipped  reach p90")
     for scale, area, flipped in fit["tried"]:
-        print("%12.3f  %11.2f %%  %7d" % (scale, 100 * area, flipped))
+        print("%12.3f  %11.2f %%  %7d  %s" % (scale, 100 * area, flipped, _reach_cell(
+            given["p90"] if given and scale == 1.0 else None)))
     if fit.get("smooth_tried"):
-        print("   smooth_mm  invalid area  flipped   (the relief as given)")
+        reach = dict(fit.get("smooth_reach", []))
+        print("   smooth_mm  invalid area  flipped  reach p90   (the relief as given)")
         for smooth, area, flipped in fit["smooth_tried"]:
-            print("%12g  %11.2f %%  %7d" % (smooth, 100 * area, flipped))
+            print("%12g  %11.2f %%  %7d  %s" % (smooth, 100 * area, flipped,
+                                                _reach_cell(reach.get(smooth))))
     print("fitted: %.1f mm of %.1f mm (scale %.3f), %d solves in %.1f s (%.1f s of them "
           "smoothing): %s" % (
               fit["max_height_mm"], fit["requested_height_mm"], fit["applied_scale"],
@@ -73,6 +77,19 @@ def _print_fit(fit):
         print("the relief as given forms with smooth_mm: %g" % fit["min_smooth_mm"]
               if fit["min_smooth_mm"] is not None else
               "no smoothing up to %g mm forms the relief as given" % fit["smooth_tried"][-1][0])
+    if fit.get("applied_smooth_mm") is not None:
+        print("applied: smooth_mm %g at the relief as given; it moves the surface by %.2f mm "
+              "on average" % (fit["applied_smooth_mm"], fit.get("removed_mm") or 0.0))
+    if given:
+        from pipeline.layout.reach import WITHIN
+        print("reach of the relief as given: its curvature is %.2f of the most the layers "
+              "can curl (p90; %s)" % (given["p90"], "within reach" if given["within"] else
+                                      "above %g: its narrow features do not form" % WITHIN))
+
+
+def _reach_cell(p90):
+    """A reach p90 for the fit's table: '-' where the solve did not ask."""
+    return "%9s" % ("-" if p90 is None else "%.2f" % p90)
 
 
 def run(args):

@@ -28,7 +28,9 @@ class Sidecar:
     min_prominence_mm : smallest peak kept by simplification, mm (overrides the profile)
     smooth_mm : smoothing scale before meshing, mm (overrides the profile)
     copies : how many sheets to print (>= 1); priority : queue priority (daemon)
-    fit : ``auto`` or ``off``: lower the relief to what forms (free layout method)
+    fit : ``auto``, ``relief`` or ``off``: make the relief form (free layout method):
+    smoothed where that forms it at full height, else lowered (``auto``); only lowered
+    (``relief``); as given (``off``)
     method : ``isoline`` or ``free``: the layout method (overrides the profile's)
     source : the sidecar file, or None when there is none
     """
@@ -137,8 +139,9 @@ _PROFILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 # Keys with a few words allowed: (the words, the fix that explains them).
 _CHOICES = {
-    "fit": (("auto", "off"), "write `fit: auto` (lower the relief to what forms) or `fit: off` "
-                             "(plan the relief as given)"),
+    "fit": (("auto", "relief", "off"),
+            "write `fit: auto` (smooth or lower the relief until it forms), `fit: relief` "
+            "(only lower it) or `fit: off` (plan the relief as given)"),
     "method": (("isoline", "free"), "write `method: isoline` (paths along the isolines: domes "
                                     "and caps) or `method: free` (a print direction per "
                                     "triangle: also saddles, valleys, real terrain)"),
