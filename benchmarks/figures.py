@@ -31,6 +31,9 @@ PLAN_COLUMNS = [
     ("invalid area", lambda n, r: _pct(r.get("invalid_area_fraction"))),
     ("flipped", lambda n, r: r.get("flipped")),
     ("fit scale", lambda n, r: _f(r.get("fit_scale"), 2)),
+    ("fit smoothed mm", lambda n, r: _f(r.get("fit_smooth_mm"), 0)),
+    ("fit moved mm", lambda n, r: _f(r.get("fit_removed_mm"), 2)),
+    ("reach p90", lambda n, r: _f(r.get("reach_p90"), 2)),
     ("sim. displacement", lambda n, r: _disp(r)),
     ("of relief", lambda n, r: _pct(r.get("mean_displacement_of_relief"))),
     ("at rest", lambda n, r: _rest(r)),
@@ -136,9 +139,12 @@ def render(groups):
                 "last) print paths across the others' (the curvature across them). "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
-                "tile again at the size the time targets name, with the default method; rows `smoothed "
-                "6 mm`: the real tile at its sidecar's full relief with `smooth_mm: 6`, at which "
-                "both tiles form their full relief. Load to "
+                "tile again at the size the time targets name, with the default method; rows `lowered "
+                "only`: the real tile fitted by lowering its relief alone (`fit: relief`). `fit "
+                "smoothed`: the smoothing the fit applied instead of lowering the relief, `fit "
+                "moved`: the mean height change the fit made to the input (either lever), "
+                "`reach p90`: the planned target's curvature over the most the layers can curl "
+                "(above 0.4 narrow features do not form). Load to "
                 "simulation counts the fit (it solves the plan's layout). `of relief`: the mean "
                 "displacement over the relief planned (a quarter or more and the hills and "
                 "valleys hardly show).", "", *_table(both), ""]
