@@ -296,9 +296,19 @@ def _refuse_too_high(result, hf, profile, sidecar, opts, timing):
                    "needs more than the material can do; at most %.1f mm forms" % (
                        _asked(result.fit), 100 * result.flat.invalid_area_fraction,
                        result.fit.max_height_mm),
-        "fix": "write `%s` in the sidecar %s%s (or remove its height to let hostd fit it)"
-               % (result.fit.sidecar_line(), Path(sidecar.source).name if sidecar.source
-                  else "", result.fit.smoothing_advice())})
+        "fix": _too_high_fix(result.fit, Path(sidecar.source).name if sidecar.source else "")})
+
+
+def _too_high_fix(fit, sidecar_name):
+    """The sidecar lines that form a relief asked for: the smoothing that keeps the
+    height first, where one does (it changes the input least), then the lower height."""
+    where = "in the sidecar %s" % sidecar_name
+    if fit.min_smooth_mm is not None:
+        return ("write `smooth_mm: %g` %s to keep the height (narrower features smoothed "
+                "away) or `%s` (the relief lowered to what forms), or remove the height to "
+                "let hostd fit it" % (fit.min_smooth_mm, where, fit.sidecar_line()))
+    return "write `%s` %s (or remove its height to let hostd fit it)" % (fit.sidecar_line(),
+                                                                           where)
 
 
 def _asked(fit):

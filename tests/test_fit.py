@@ -176,6 +176,16 @@ def test_fit_relief_lowers_the_spike_and_offers_the_smoothing(tmp_path):
     assert fit["removed_mm"] > 0
 
 
+def test_a_height_asked_for_that_a_smoothing_forms_is_offered_the_smoothing_first(tmp_path):
+    """The smoothing that keeps the height changes the input least: the fix names it
+    before the lower height."""
+    plan = _spike_plan(tmp_path, "height_mm: 20\n")
+    [p] = [p for p in plan.problems if p["code"] == "fit.too_high"]
+    smooth = "smooth_mm: %g" % plan.fit.min_smooth_mm
+    assert smooth in p["fix"] and "spike.yaml" in p["fix"]
+    assert p["fix"].index(smooth) < p["fix"].index(plan.fit.sidecar_line())
+
+
 def _ribs(amplitude_mm, px=0.5):
     """A 90 mm square of ribs 6 mm apart, ``amplitude_mm`` high, on a gentle hill: slopes
     any sheet lays out, curvature no sheet of a millimetre and more curls into."""
