@@ -106,7 +106,7 @@ print(json.dumps({
     "hold_displacement": next((t[1] for t in hold.get("tried", []) if t[0] == hold.get("smooth_mm")), None),
     "looks_s": round(ts.get("other_method", 0.0) + ts.get("hold", 0.0), 3),
     "method": fl.get("method"), "invalid_area_fraction": fl.get("invalid_area_fraction"),
-    "flipped": fl.get("flipped"), "fit_scale": fit.get("applied_scale"),
+    "flipped": fl.get("flipped", fl.get("flipped_triangles")), "fit_scale": fit.get("applied_scale"),
     "fit_max_height_mm": fit.get("max_height_mm"), "fit_s": ts.get("fit"),
     "fit_smooth_mm": fit.get("applied_smooth_mm"), "fit_removed_mm": fit.get("removed_mm"),
     "reach_p90": ((r.get("curvature") or {}).get("reach") or {}).get("p90"),

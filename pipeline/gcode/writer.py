@@ -268,13 +268,31 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
     ``lines_without_arcs`` when arc fitting is on; ``upper_traces`` with ``upper``.
     """
     settings = GcodeSettings.from_profile(profile)
-    lower, clamped = _thickness_set(traces, sigmas, deltas, settings)
+    n = settings.layers
+    if len(traces) != len(sigmas):
+        raise PlanError("%d traces but %d sigma arrays" % (len(traces), len(sigmas)),
+                        code="gcode.bad_input", fix="give one sigma array per trace")
+    others = []
     if upper is not None:
-        upper, clamped_up = _thickness_set(*upper, settings)
-        clamped += clamped_up
-    return write_thickness_gcode(lower[0], lower[1], settings, out, name=name, center=center,
-                                 arc_values=lower[2], arc_value_span=settings.merge_sigma,
-                                 clamped_segments=clamped, upper=upper)
+        others.append((upper[0], _bilayer_layers(upper[1], upper[2], n),
+                       range(n - n // 2 + 1, n + 1), "upper"))
+    return write_laminate_gcode((traces, _bilayer_layers(sigmas, deltas, n)), others,
+                                settings, out, name=name, center=center)
+
+
+def _bilayer_layers(sigmas, deltas, layers):
+    """Each trace's shrink per layer, (k - 1, layers), of a bilayer: the lower half of
+    the layers at ``sigma + delta / 2``, the upper half at ``sigma - delta / 2``, a
+    middle layer at ``sigma``; every layer at ``sigma`` without ``deltas``."""
+    half = np.where(np.arange(layers) < layers // 2, 0.5,
+                    np.where(np.arange(layers) >= layers - layers // 2, -0.5, 0.0))
+    out = []
+    for i, sigma in enumerate(sigmas):
+        sigma = np.asarray(sigma, dtype=float).reshape(-1)
+        delta = (np.zeros_like(sigma) if deltas is None
+                 else np.asarray(deltas[i], dtype=float).reshape(-1))
+        out.append(sigma[:, None] + delta[:, None] * half[None, :])
+    return out
 
 
 def write_laminate_gcode(along, others, profile, out, name="part", center=True):
@@ -314,50 +332,17 @@ def _layer_set(traces, layer_sigmas, settings):
     per_seg = np.concatenate(values + [np.zeros((0, layers))])
     theta, clamped = thickness_for_sigma(per_seg.ravel(), settings)
     theta = theta.reshape(-1, layers)
+    if np.all(theta == theta[:, :1]):
+        # Equal layers: one column, each layer's Z its number times the thickness (the
+        # paper's), and its moves' text written once for all layers.
+        theta = theta[:, :1]
     return ((traces, np.split(theta, parts), np.split(per_seg.mean(axis=1), parts)),
             int(clamped.reshape(-1, layers).any(axis=1).sum()))
 
 
-def _thickness_set(traces, sigmas, deltas, settings):
-    """One set of traces ready to write: ((traces, thicknesses, arc values), clamped
-    segments), chords merged and each segment's thickness from its shrink."""
-    if len(traces) != len(sigmas):
-        raise PlanError("%d traces but %d sigma arrays" % (len(traces), len(sigmas)),
-                        code="gcode.bad_input", fix="give one sigma array per trace")
-    traces, values = merge_chords(traces, _per_segment(sigmas, deltas),
-                                  settings.chord_tolerance_mm, settings.merge_sigma)
-    parts = np.cumsum([len(v) for v in values])[:-1]
-    per_seg = np.concatenate(values + [np.zeros((0, 1 if deltas is None else 2))])
-    flat = per_seg[:, 0]
-    if deltas is None:
-        theta, clamped = thickness_for_sigma(flat, settings)
-    else:
-        theta, clamped = _bilayer_thickness(flat, per_seg[:, 1], settings)
-    return (traces, np.split(theta, parts), np.split(flat, parts)), int(clamped.sum())
-
-
-def _per_segment(sigmas, deltas):
-    """Each trace's (k - 1, 1) shrink, or (k - 1, 2) shrink and bilayer difference."""
-    cols = [sigmas] if deltas is None else [sigmas, deltas]
-    return [np.column_stack([np.asarray(c[i], dtype=float).reshape(-1) for c in cols])
-            for i in range(len(sigmas))]
-
-
-def _bilayer_thickness(sigma, delta, settings):
-    """Thickness per segment and layer ((s, layers) mm) of a bilayer, and the clamped
-    segments: the lower half of the layers at ``sigma + delta / 2``, the upper half at
-    ``sigma - delta / 2``."""
-    layers = settings.layers
-    half = np.where(np.arange(layers) < layers // 2, 0.5,
-                    np.where(np.arange(layers) >= layers - layers // 2, -0.5, 0.0))
-    per_layer = sigma[:, None] + delta[:, None] * half[None, :]
-    theta, clamped = thickness_for_sigma(per_layer.ravel(), settings)
-    return theta.reshape(-1, layers), clamped.reshape(-1, layers).any(axis=1)
-
-
 def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=True,
                           labels=None, arc_values=None, arc_value_span=0.0,
-                          clamped_segments=0, header_extra=(), upper=None, others=()):
+                          clamped_segments=0, header_extra=(), others=()):
     """Write G-code for traces with a given layer thickness per segment.
 
     ``write_gcode`` without the shrink curve (calibration prints thicknesses
@@ -365,17 +350,14 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     (k - 1, layers) for a thickness per layer; each layer's Z is then the sum of
     the thicknesses below it. ``labels`` (one str per trace, or None) become ``;`` comment
     lines before each trace; ``arc_values`` (per segment, default the
-    thickness) may span at most ``arc_value_span`` inside one arc. ``upper``
-    (traces, thicknesses, arc values) prints the upper half of the layers on paths of its
-    own; each of ``others`` (traces, thicknesses, arc values, layer numbers from 1, role:
+    thickness) may span at most ``arc_value_span`` inside one arc. Each of ``others``
+    (traces, thicknesses, arc values, layer numbers from 1, role:
     ``upper`` or ``across``) prints its layers; ``traces`` print the layers left.
     See :func:`write_gcode` for the other parameters and the returned stats.
     """
     settings = GcodeSettings.from_profile(settings)
     n = settings.layers
     others = list(others)
-    if upper is not None:
-        others.append((upper[0], upper[1], upper[2], range(n - n // 2 + 1, n + 1), "upper"))
     # Each other set prints its own layers; the traces given first print the rest.
     taken = {int(k) for o in others for k in o[3]}
     sets = [(traces, thetas_mm, labels, arc_values,
