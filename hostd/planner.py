@@ -161,8 +161,8 @@ def _baud_for(baud, factor):
 
 
 def preview_title(plan):
-    """The preview's title: the job, its size, the layout method that planned it, and the
-    relief it was lowered to when the fit lowered it."""
+    """The preview's title: the job, its size, the layout method that planned it, and
+    what the fit did to make it form (the smoothing, or the relief it was lowered to)."""
     return "%s (%.0f mm, %s method): target vs. simulated after shrinking%s" % (
         plan.name, plan.report["heightfield"]["longest_diameter_mm"],
         plan.report["flatten"]["method"], _fit_note(plan))
@@ -170,6 +170,9 @@ def preview_title(plan):
 
 def _fit_note(plan):
     fit = getattr(plan, "fit", None)
+    if fit is not None and fit.applied_smooth_mm is not None:
+        return " (smoothed %g mm to form, the surface moved %.1f mm on average)" % (
+            fit.applied_smooth_mm, fit.removed_mm or 0.0)
     if fit is None or fit.applied_scale >= 1.0:
         return ""
     return " (relief lowered from %.1f to %.1f mm to form)" % (fit.requested_height_mm,

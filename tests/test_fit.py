@@ -160,6 +160,7 @@ def test_a_narrow_spike_is_smoothed_and_the_relief_kept(tmp_path):
     assert "smoothed %g mm" % fit["applied_smooth_mm"] in smoothed["message"]
     assert "fit: relief" in smoothed["fix"]
     assert "fit.lowered" not in [p["code"] for p in plan.problems]
+    assert "smoothed %g mm to form" % fit["applied_smooth_mm"] in planner.preview_title(plan)
 
 
 def test_fit_relief_lowers_the_spike_and_offers_the_smoothing(tmp_path):
@@ -174,6 +175,7 @@ def test_fit_relief_lowers_the_spike_and_offers_the_smoothing(tmp_path):
     [lowered] = [p for p in plan.problems if p["code"] == "fit.lowered"]
     assert "smooth_mm: %g" % fit["min_smooth_mm"] in lowered["fix"]
     assert fit["removed_mm"] > 0
+    assert "relief lowered from" in planner.preview_title(plan)
 
 
 def test_a_height_asked_for_that_a_smoothing_forms_is_offered_the_smoothing_first(tmp_path):
