@@ -130,7 +130,7 @@ def write_outputs(st, plan):
     count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(out["input.png"], hfimage.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
-        title="%s: input as meshed (%d small peaks removed)" % (name, count),
+        title="%s: input as meshed (%d small peaks removed%s)" % (name, count, _input_note(plan)),
         isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
 
 
@@ -166,6 +166,16 @@ def preview_title(plan):
     return "%s (%.0f mm, %s method): target vs. simulated after shrinking%s" % (
         plan.name, plan.report["heightfield"]["longest_diameter_mm"],
         plan.report["flatten"]["method"], _fit_note(plan))
+
+
+def _input_note(plan):
+    """What the fit did to the input before it was meshed: '' or ', ...'."""
+    fit = getattr(plan, "fit", None)
+    if fit is not None and fit.applied_smooth_mm is not None:
+        return ", smoothed %g mm by the fit" % fit.applied_smooth_mm
+    if fit is not None and fit.applied_scale < 1.0:
+        return ", relief lowered to %.0f %% by the fit" % (100 * fit.applied_scale)
+    return ""
 
 
 def _fit_note(plan):

@@ -161,6 +161,7 @@ def test_a_narrow_spike_is_smoothed_and_the_relief_kept(tmp_path):
     assert "fit: relief" in smoothed["fix"]
     assert "fit.lowered" not in [p["code"] for p in plan.problems]
     assert "smoothed %g mm to form" % fit["applied_smooth_mm"] in planner.preview_title(plan)
+    assert "smoothed %g mm by the fit" % fit["applied_smooth_mm"] in planner._input_note(plan)
 
 
 def test_fit_relief_lowers_the_spike_and_offers_the_smoothing(tmp_path):
