@@ -375,6 +375,9 @@ def _free_sheet(result, hf, profile, stage, timing):
     timing["simulate"] = time.perf_counter() - t
     t = stage("toolpath", "stripes %.3g mm wide along the print direction"
               % profile.path_width_mm)
+    # The layers across are printed on the layout solved again for their shrink: the
+    # sheet, its pictures and its files are that layout's.
+    flat = result.flat = result.curvature.layout or flat
     result.xy_bed = _on_bed(flat.xy, profile)
     tp = profile.toolpath
     # The shrink as printed: the layout's, with what the curvature program added.

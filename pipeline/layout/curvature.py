@@ -57,6 +57,9 @@ class CurvatureProgram:
     laminate : :class:`pipeline.layout.laminate.Laminate` where two layers print
     across ``d``, or None
     across : the comparison that chose whether they do, or None
+    layout : the :class:`pipeline.layout.free.FreeLayout` the program prints on where it
+    is not the plan's first (the layers across are printed on a layout solved again for
+    their shrink, :mod:`pipeline.layout.compensate`), or None
     """
 
     kappa: np.ndarray
@@ -70,6 +73,7 @@ class CurvatureProgram:
     added: dict = None
     laminate: object = None
     across: dict = None
+    layout: object = None
 
     @property
     def crossed(self):

@@ -179,25 +179,15 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
     t0 = time.perf_counter()
     V = np.asarray(mesh.vertices, dtype=float)
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    n, m = len(V), len(faces)
+    m = len(faces)
     lam_lo, lam_hi = 1.0 / (1.0 - s_min), 1.0 / (1.0 - s_max)
-    Dm_inv, area = target_frames(V, faces)
-    base = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
-    C = np.einsum("kc,fcd->fkd", base, Dm_inv)               # J = sum_k x_k (x) C[f, k]
-    rows = np.broadcast_to(np.arange(2 * m).reshape(m, 1, 2), (m, 3, 2))
-    cols = np.broadcast_to(faces[:, :, None], (m, 3, 2))
-    G = sp.csr_matrix((C.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * m, n))
-    W = sp.diags(np.repeat(area, 2))
-    GtW = (G.T @ W).tocsr()
-    M = (GtW @ G).tocsc()
-    eps = 1e-8 * float(M.diagonal().mean())
-    lu = splu(M + eps * sp.identity(n, format="csc"), permc_spec="MMD_AT_PLUS_A")
+    G, GtW, lu, eps, area = global_system(V, faces)
     X = (np.asarray(start_xy, dtype=float) if start_xy is not None else V[:, :2]).copy()
     mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
     setup = time.perf_counter() - t0
     it, residual, converged = 0, np.inf, False
     for it in range(1, iterations + 1):
-        J = _jacobians(G, X, m)
+        J = jacobians(G, X, m)
         P, _, _ = project(J, lam_lo, lam_hi)
         residual = float(np.sqrt(np.einsum("f,fij,fij->", area, J - P, J - P) / area.sum()))
         # G X stacks each triangle's J as two rows (columns of J^T): rhs = G^T W P^T.
@@ -208,7 +198,7 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
         if move < tol * mean_edge:
             converged = True
             break
-    J = _jacobians(G, X, m)
+    J = jacobians(G, X, m)
     _, lam, U = project(J, lam_lo, lam_hi)
     d = U[:, :, 0]
     sigma = 1.0 - 1.0 / lam
@@ -225,6 +215,28 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
                       timing_s={"setup": setup, "total": time.perf_counter() - t0})
 
 
+def global_system(V, faces):
+    """The global step of a local/global layout of the target ``V`` ((n, 3) mm),
+    ``faces`` ((m, 3)): G stacking each triangle's Jacobian (target frame -> layout) as
+    two rows of ``G X``, G^T W (W the target areas), the factored G^T W G (plus ``eps``
+    times the identity, which pins the free translation), ``eps``, the areas (m,).
+    The layout whose Jacobians come nearest the wanted ``P`` ((m, 2, 2)) in the
+    area-weighted sense is then ``lu.solve(GtW @ P^T stacked + eps X)``."""
+    n, m = len(V), len(faces)
+    Dm_inv, area = target_frames(V, faces)
+    base = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
+    C = np.einsum("kc,fcd->fkd", base, Dm_inv)               # J = sum_k x_k (x) C[f, k]
+    rows = np.broadcast_to(np.arange(2 * m).reshape(m, 1, 2), (m, 3, 2))
+    cols = np.broadcast_to(faces[:, :, None], (m, 3, 2))
+    G = sp.csr_matrix((C.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * m, n))
+    W = sp.diags(np.repeat(area, 2))
+    GtW = (G.T @ W).tocsr()
+    M = (GtW @ G).tocsc()
+    eps = 1e-8 * float(M.diagonal().mean())
+    lu = splu(M + eps * sp.identity(n, format="csc"), permc_spec="MMD_AT_PLUS_A")
+    return G, GtW, lu, eps, area
+
+
 def _across_strain(J, d):
     """Strain of the layout across each triangle's print direction ``d`` ((m, 2) unit),
     from the Jacobians ``J`` ((m, 2, 2), target -> layout): {mean_abs, max_abs}."""
@@ -235,7 +247,7 @@ def _across_strain(J, d):
             "max_abs": float(np.abs(strain).max()) if len(strain) else 0.0}
 
 
-def _jacobians(G, X, m):
+def jacobians(G, X, m):
     """(m, 2, 2) Jacobians of the layout ``X`` ((n, 2)) from the stacked rows ``G``."""
     return np.transpose((G @ X).reshape(m, 2, 2), (0, 2, 1))
 

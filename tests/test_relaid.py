@@ -1,0 +1,80 @@
+"""The layout solved again for the shrink the stack prints: across the paths by the
+layers across, along them at least the room the bilayer takes."""
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import HeightField, signed_areas_2d
+from pipeline.layout.compensate import relaid
+from pipeline.meshing.grid import build_grid_mesh
+from test_laminate import small_terrain
+
+
+def _square(size_mm=40.0, px=0.5):
+    n = int(size_mm / px) + 1
+    return build_grid_mesh(HeightField(np.zeros((n, n)), px, source="flat"), 1.0)
+
+
+def _turned(angle_deg, m):
+    a = np.radians(angle_deg)
+    return np.tile([np.cos(a), np.sin(a)], (m, 1))
+
+
+def test_a_flat_sheet_is_laid_out_longer_by_what_the_layers_shrink():
+    """A flat target printed with 5 % shrink across d (x) and 10 % along it: the layout
+    is 1/0.95 as long across and 1/0.9 along, and d stays."""
+    mesh = _square()
+    m = len(mesh.faces)
+    d = _turned(0.0, m)
+    xy, d2, sigma, info = relaid(mesh.vertices, mesh.faces, mesh.vertices[:, :2], d,
+                                 np.full(m, 0.05), np.full(m, 0.10), 0.0, 0.34)
+    extent = np.ptp(xy, axis=0) / np.ptp(mesh.vertices[:, :2], axis=0)
+    assert extent == pytest.approx([1 / 0.9, 1 / 0.95], rel=1e-3)
+    assert sigma == pytest.approx(0.10, abs=1e-4)
+    assert np.allclose(d2, d, atol=1e-6) and info["residual"] < 1e-4
+
+
+def test_where_nothing_is_asked_the_layout_and_its_free_directions_stay():
+    """No shrink across and no room: the layout does not move, and where it stretches
+    alike both ways (round-off picks its singular vectors) the direction the program
+    chose stays."""
+    mesh = _square()
+    m = len(mesh.faces)
+    d = _turned(30.0, m)
+    xy, d2, sigma, info = relaid(mesh.vertices, mesh.faces, mesh.vertices[:, :2], d,
+                                 np.zeros(m), np.zeros(m), 0.0, 0.34)
+    assert info["max_move_mm"] < 1e-6
+    assert np.allclose(d2, d, atol=1e-9) and np.allclose(sigma, 0.0, atol=1e-9)
+
+
+def test_a_saddle_stack_is_printed_on_its_own_layout_and_rests_closer():
+    """A 60 mm saddle's stack with two layers across, probed on the layout solved again
+    for its shrink and on the first: relaid it is two thirds closer (on the first the
+    shrink across puts the sheet off the target's metric), and the plan prints that
+    layout, unfolded."""
+    from pipeline.input import shapes
+    from pipeline.simulation.programmed import simulate_free
+    from test_curvature_program import plan_layout
+    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=15.0)
+    profile, mesh, flat = plan_layout(hf)
+    prog, sim = simulate_free(hf, mesh, flat, profile)
+    across = prog.across
+    relaid_probe, first_probe = across["probe_mean_displacement_mm"]
+    assert across["kept"] and across["chosen"] == 0 and across["relaid"]["chosen"]
+    assert relaid_probe < 0.5 * first_probe
+    assert across["relaid"]["flipped"] == 0 and across["relaid"]["residual"] < 0.01
+    assert prog.layout is not flat and not np.allclose(prog.layout.xy, flat.xy)
+    assert np.all(signed_areas_2d(prog.layout.xy, mesh.faces) > 0)
+
+
+def test_a_terrain_stack_stays_on_the_first_layout_where_that_probes_closer():
+    """The small terrain tile rests closer on the first layout: that stack is kept, and
+    the plan prints the first layout."""
+    from pipeline.simulation.programmed import simulate_free
+    hf, profile, mesh, flat = small_terrain()
+    prog, sim = simulate_free(hf, mesh, flat, profile)
+    across = prog.across
+    relaid_probe, first_probe = across["probe_mean_displacement_mm"]
+    assert across["kept"] and first_probe < relaid_probe
+    assert across["chosen"] == 1 and not across["relaid"]["chosen"]
+    assert prog.layout is flat
