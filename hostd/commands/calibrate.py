@@ -56,42 +56,38 @@ def add_parser(subparsers):
     _common(f)
     f.add_argument("--degree", type=int, default=4, help="polynomial degree (paper: 4)")
     f.set_defaults(func=run_fit)
-    b = sub.add_parser("bilayer", help="write G-code for bilayer strips and a CSV template",
-                       description="Write DIR/bilayer.gcode: strips whose lower layers are "
-                                   "thinner than their upper ones by a few differences (one "
-                                   "with none), DIR/bilayer_layout.svg and DIR/bilayer.csv.")
-    _common(b, "bilayer.csv")
-    b.add_argument("--values", type=int, default=5, help="thickness differences (default 5)")
-    b.add_argument("--repeats", type=int, default=2, help="strips per difference (default 2)")
-    b.set_defaults(func=run_bilayer)
-    bf = sub.add_parser("bilayer-fit", help="fit the bilayer constant from measured strips",
-                        description="Fit c of kappa = c (sigma_bottom - sigma_top) / h to the "
-                                    "measured curl of the strips and write an updated copy of "
-                                    "the profile with it (curvature.bilayer_c).")
-    bf.add_argument("measured", metavar="BILAYER.csv")
-    _common(bf)
-    bf.set_defaults(func=run_bilayer_fit)
-    a = sub.add_parser("across", help="write G-code for strips of the layers across the paths "
-                                      "and a CSV template",
-                       description="Write DIR/across.gcode: strips whose second and second-last "
-                                   "layers print along them, thinner and thicker by a few "
-                                   "differences (one with none), and every other layer across "
-                                   "them; DIR/across_layout.svg and DIR/across.csv.")
-    _common(a, "across.csv")
-    a.add_argument("--values", type=int, default=5, help="thickness differences (default 5)")
-    a.add_argument("--repeats", type=int, default=2, help="strips per difference (default 2)")
-    a.set_defaults(func=run_across)
-    af = sub.add_parser("across-fit", help="fit the constant of the layers across from measured "
-                                           "strips",
-                        description="Fit c_across of kappa = c_across * 4 (N - 3) / N^2 * "
-                                    "(sigma_2 - sigma_N-1) / h to the measured curl of the "
-                                    "strips and write an updated copy of the profile with it "
-                                    "(curvature.across_c).")
-    af.add_argument("measured", metavar="ACROSS.csv")
-    _common(af)
-    af.set_defaults(func=run_across_fit)
+    _strip_steps(sub, "bilayer", "bilayer strips",
+                 "strips whose lower layers are thinner than their upper ones by a few "
+                 "differences (one with none)", run_bilayer,
+                 "the bilayer constant", "c of kappa = c (sigma_bottom - sigma_top) / h",
+                 "curvature.bilayer_c", run_bilayer_fit)
+    _strip_steps(sub, "across", "strips of the layers across the paths",
+                 "strips whose second and second-last layers print along them, thinner and "
+                 "thicker by a few differences (one with none), and every other layer across "
+                 "them", run_across,
+                 "the constant of the layers across",
+                 "c_across of kappa = c_across * 4 (N - 3) / N^2 * (sigma_2 - sigma_N-1) / h",
+                 "curvature.across_c", run_across_fit)
     parser.set_defaults(func=lambda args: _usage(parser))
     return parser
+
+
+def _strip_steps(sub, kind, what, strips, run, constant, formula, key, run_fit):
+    """The two steps of a strip calibration: ``KIND`` writes the strips' G-code, layout
+    and CSV; ``KIND-fit`` fits ``formula`` to the measured CSV into profile ``key``."""
+    p = sub.add_parser(kind, help="write G-code for %s and a CSV template" % what,
+                       description="Write DIR/%s.gcode: %s; DIR/%s_layout.svg and DIR/%s.csv."
+                                   % (kind, strips, kind, kind))
+    _common(p, "%s.csv" % kind)
+    p.add_argument("--values", type=int, default=5, help="thickness differences (default 5)")
+    p.add_argument("--repeats", type=int, default=2, help="strips per difference (default 2)")
+    p.set_defaults(func=run)
+    f = sub.add_parser("%s-fit" % kind, help="fit %s from measured strips" % constant,
+                       description="Fit %s to the measured curl of the strips and write an "
+                                   "updated copy of the profile with it (%s)." % (formula, key))
+    f.add_argument("measured", metavar="%s.csv" % kind.upper())
+    _common(f)
+    f.set_defaults(func=run_fit)
 
 
 def _common(p, csv_name=None):

@@ -21,8 +21,7 @@ import numpy as np
 
 from pipeline.layout.laminate import across_layers, curvature_per_lever, levers
 from pipeline.profiles import bilayer
-from pipeline.profiles.calibration import (CalibrationError, csv_text, rectangle_trace,
-                                           specimen_label)
+from pipeline.profiles.calibration import CalibrationError, rectangle_trace, specimen_label
 
 LENGTH_MM, WIDTH_MM, COLUMNS = bilayer.LENGTH_MM, bilayer.WIDTH_MM, bilayer.COLUMNS
 
@@ -86,25 +85,15 @@ def strip_traces(specimens, pair_of, layers, path_width_mm, middle_mm):
 def template(specimens, pair_of, profile_name, layers, middle_mm):
     """The CSV to fill in after the bath, with instructions as ``#`` comments."""
     two, last = layer_numbers(layers)
-    head = [
+    return bilayer.strip_template(
         "# hostd calibration of the layers across for profile %s: %d strips %g x %g mm."
         " Layers %d and %d print along the %g mm side, layer %d thinner than layer %d by the"
         " difference in each row (bottom_mm: layer %d, top_mm: layer %d); every other layer"
         " prints across the strip at %g mm."
         % (profile_name, len(specimens), LENGTH_MM, WIDTH_MM, two, last, LENGTH_MM, two, last,
            two, last, middle_mm),
-        "# 1. Print across.gcode; across_layout.svg shows which strip is which.",
-        "# 2. Bathe them at 80-90 C until they stop moving; let them cool.",
-        "# 3. Lay each strip on its edge on a table. Hold a ruler across its two ends on the"
-        " inside of the curl: write the distance between the ends in chord_mm and the largest"
-        " gap between the ruler and the strip in rise_mm (0 for a flat strip; negative if the"
-        " bed side of the strip is on the outside of the curl, the other way than expected)."
-        " The strips also narrow; only their curl along the length is measured.",
-        "# 4. hostd calibrate across-fit across.csv --profile %s -o %s-across.yaml"
-        % (profile_name, profile_name),
-    ]
-    return csv_text(head, COLUMNS, [[s.id, "%g" % pair_of[s.id][0], "%g" % pair_of[s.id][1],
-                                     s.repeat, "", ""] for s in specimens])
+        "across", " The strips also narrow; only their curl along the length is measured.",
+        specimens, pair_of, profile_name)
 
 
 def fit_c(measured, shrink, layers):

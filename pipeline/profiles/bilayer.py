@@ -69,18 +69,27 @@ def strip_traces(specimens, pair_of, layers, path_width_mm):
 
 def template(specimens, pair_of, profile_name):
     """The CSV to fill in after the bath, with instructions as ``#`` comments."""
-    head = [
+    return strip_template(
         "# hostd bilayer calibration for profile %s: %d strips %g x %g mm, paths along the"
         " %g mm side, lower layers thinner than upper ones by the difference in each row."
         % (profile_name, len(specimens), LENGTH_MM, WIDTH_MM, LENGTH_MM),
-        "# 1. Print bilayer.gcode; bilayer_layout.svg shows which strip is which.",
+        "bilayer", "", specimens, pair_of, profile_name)
+
+
+def strip_template(title, kind, note, specimens, pair_of, profile_name):
+    """The CSV of strips of ``kind`` (``bilayer``, ``across``) to fill in after the bath:
+    ``title``, then the steps (``note`` after the measuring one) as ``#`` comments."""
+    head = [
+        title,
+        "# 1. Print %s.gcode; %s_layout.svg shows which strip is which." % (kind, kind),
         "# 2. Bathe them at 80-90 C until they stop moving; let them cool.",
         "# 3. Lay each strip on its edge on a table. Hold a ruler across its two ends on the"
         " inside of the curl: write the distance between the ends in chord_mm and the largest"
         " gap between the ruler and the strip in rise_mm (0 for a flat strip; negative if the"
-        " bed side of the strip is on the outside of the curl, the other way than expected).",
-        "# 4. hostd calibrate bilayer-fit bilayer.csv --profile %s -o %s-bilayer.yaml"
-        % (profile_name, profile_name),
+        " bed side of the strip is on the outside of the curl, the other way than expected)."
+        + note,
+        "# 4. hostd calibrate %s-fit %s.csv --profile %s -o %s-%s.yaml"
+        % (kind, kind, profile_name, profile_name, kind),
     ]
     return csv_text(head, COLUMNS, [[s.id, "%g" % pair_of[s.id][0], "%g" % pair_of[s.id][1],
                                      s.repeat, "", ""] for s in specimens])
