@@ -251,7 +251,7 @@ def _fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
     timing["fit"] = time.perf_counter() - t
     fit = result.fit
     if fit.applied_smooth_mm is not None:
-        smoothed = _resmooth(result, opts)(fit.applied_smooth_mm)
+        smoothed = fit.smoothed
         fit.removed_mm = float(np.nanmean(np.abs(smoothed.z - hf.z)))
         # The looks that follow (the hold) start from the smoothing applied.
         opts["smooth_mm"] = fit.applied_smooth_mm

@@ -51,7 +51,8 @@ class Fit:
     given against the stack's curvature limit (:func:`pipeline.layout.reach.reach`, on
     the quick mesh); smooth_reach : [(smooth_mm, reach p90)] of the smoothing solves;
     removed_mm : the mean height change (mm) the plan makes to the input by the lever it
-    applies (smoothing or lowering), None where it applies none.
+    applies (smoothing or lowering), None where it applies none; smoothed : the input
+    smoothed ``applied_smooth_mm``, the field the plan then takes.
     """
 
     requested_height_mm: float
@@ -70,6 +71,7 @@ class Fit:
     reach_given: dict = None
     smooth_reach: list = field(default_factory=list)
     removed_mm: float = None
+    smoothed: HeightField = None
 
     def report(self):
         """The report's ``fit`` section."""
@@ -193,11 +195,11 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
         cap_mm=max(rows, cols) * hf.pixel_mm / 10.0)
     t2 = time.perf_counter()
     if least is not None and smooth_first:
-        smoothed = np.asarray(resmooth(least).z, dtype=float)
-        return Fit(relief, float(np.nanmax(smoothed) - np.nanmin(smoothed)), 1.0, smooth_mm,
-                   _why(lays_out, s_max), tried, time.perf_counter() - t0, least, smooth_tried,
-                   t2 - t1, applied_smooth_mm=least, reach_given=reach_given,
-                   smooth_reach=smooth_reach)
+        smoothed = resmooth(least)
+        return Fit(relief, float(np.nanmax(smoothed.z) - np.nanmin(smoothed.z)), 1.0,
+                   smooth_mm, _why(lays_out, s_max), tried, time.perf_counter() - t0, least,
+                   smooth_tried, t2 - t1, applied_smooth_mm=least, reach_given=reach_given,
+                   smooth_reach=smooth_reach, smoothed=smoothed)
     lo = 1.0 if lays_out else _lowered(ok, tried, hf, s_max, target, steps, grid, iterations,
                                         fine_mm, fine_steps, fine_iterations)
     reason = ("forms as given, but bends beyond the sheet's reach" if lays_out

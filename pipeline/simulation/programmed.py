@@ -80,7 +80,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
                               tensor_rest(flat.xy, mesh.faces, (A + B) / 2), thick,
                               theta_rest=prog.theta_rest, pop=BATH_BUMP, **kw)
 
-    program = programmed(0.0)
+    program = bilayer = programmed(0.0)
     sim = settle(program)
     # Crossed groups need an even layer count: a middle layer printed with either group
     # would shear the sheet's mean shrink by twist / (2 * layers).
@@ -100,7 +100,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
         # elongated peak rest 40-80 % closer; three islands and the small terrains
         # 5-35 % further).
         stacks = [_across_stack(hf, mesh, flat, K, sigma, profile, thickness,
-                                turn if twist else 0.0, relay) for relay in (True, False)]
+                                turn if twist else 0.0, bilayer, relay) for relay in (True, False)]
         before = program
         (program, sim), tried = _tried(program, sim, [(stack, _settle_stack(mesh, stack, metric))
                                                       for stack, metric in stacks],
@@ -125,7 +125,8 @@ def _settle_stack(mesh, stack, metric):
     return settle
 
 
-def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, relay=True):
+def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
+                  relay=True):
     """The program with two layers across ``d`` (:mod:`pipeline.layout.laminate`), on
     the layout solved again for the shrink that stack prints (:func:`_relaid_for`,
     :data:`RELAY_PASSES` times), the stack made again on each. Printed on the first
@@ -133,7 +134,8 @@ def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, relay=True
     starfish rests 0.11 % of its diameter off instead of 0.54 %, the elongated peak 0.25
     instead of 0.39 %, the hyperbolic paraboloid 0.06 instead of 0.35 % (each settled
     from flat; the smoothed coast tile 0.54 against 0.48 %). Without ``relay`` the stack
-    is made on the first layout.
+    is made on the first layout, its layers along ``d`` those of ``bilayer`` (the program
+    already made there).
     Returns (program with ``layout`` and ``across = {"relaid": ...}``, its mean shrink
     tensor (m, 2, 2))."""
     lim, cp, n = profile.shrink_limits, profile.curvature, profile.layers
@@ -152,8 +154,9 @@ def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, relay=True
         sigma = curvature.room_for(K, laid.direction, s_laid, thickness(s_laid), lim.s_min,
                                    lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
     lam = stack_on(K, laid.direction, sigma)
-    stack = _across_program(_base(hf, mesh, laid, profile, thickness, K, sigma), lam, laid,
-                            mesh.faces, cp.bilayer_c, c_across=cp.across_constant)
+    base = bilayer if laid is flat else _base(hf, mesh, laid, profile, thickness, K, sigma)
+    stack = _across_program(base, lam, laid, mesh.faces, cp.bilayer_c,
+                            c_across=cp.across_constant)
     stack.layout, stack.across = laid, {"relaid": info}
     return stack, lam.metric(laid.direction)
 
