@@ -78,3 +78,54 @@ def test_a_terrain_stack_stays_on_the_first_layout_where_that_probes_closer():
     assert across["kept"] and first_probe < relaid_probe
     assert across["chosen"] == 1 and not across["relaid"]["chosen"]
     assert prog.layout is flat
+
+
+@pytest.mark.parametrize("folds_on", [1, 2])
+def test_a_relaid_layout_that_would_fold_leaves_the_stack_on_the_layout_before(folds_on):
+    """A solve whose layout folds is not printed: on the first pass the stack stays on the
+    first layout, on the second on the first pass's, its program made there."""
+    import pipeline.layout.compensate as compensate
+    from pipeline.input import shapes
+    from pipeline.simulation import programmed
+    from test_curvature_program import plan_layout
+    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=15.0)
+    profile, mesh, flat = plan_layout(hf)
+    original, layouts = compensate.relaid, []
+
+    def folding(*args, **kw):
+        xy, d, sigma, info = original(*args, **kw)
+        if len(layouts) + 1 == folds_on:
+            xy = xy * np.array([-1.0, 1.0])            # mirrored: every triangle turned over
+        layouts.append(xy)
+        return xy, d, sigma, info
+    compensate.relaid = folding
+    try:
+        stack, _ = programmed._across_stack(hf, mesh, flat,
+                                            *_program_inputs(hf, mesh, flat, profile))
+    finally:
+        compensate.relaid = original
+    assert stack.across["relaid"]["flipped"] > 0
+    if folds_on == 1:
+        assert stack.layout is flat
+    else:
+        assert np.allclose(stack.layout.xy, layouts[0])
+    assert np.all(signed_areas_2d(stack.layout.xy, mesh.faces) > 0)
+
+
+def _program_inputs(hf, mesh, flat, profile):
+    """K, sigma, profile, thickness, turn and the bilayer program, as simulate_free makes
+    them for the stack."""
+    from pipeline.layout import curvature
+    from pipeline.simulation import programmed
+    from pipeline.simulation.shell import thickness_for
+    lim, cp = profile.shrink_limits, profile.curvature
+
+    def thickness(s):
+        return thickness_for(s, profile.shrink_curve, profile.layers,
+                             profile.thickness_mm.min, profile.thickness_mm.max)
+    laid = np.clip(flat.sigma, lim.s_min, lim.s_max)
+    K = curvature.target_tensor(hf, mesh, flat, laid)
+    sigma = curvature.room_for(K, flat.direction, laid, thickness(laid), lim.s_min, lim.s_max,
+                               c=cp.bilayer_c, added_max=cp.max_added_shrink)
+    bilayer = programmed._program_on(mesh, flat, profile, thickness, K, sigma)
+    return K, sigma, profile, thickness, cp.turn_max_deg, bilayer

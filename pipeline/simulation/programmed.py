@@ -62,17 +62,11 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
                                lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
     thick = thickness(sigma)
 
-    added = _added(flat.xy, mesh.faces, laid, sigma)
-
     def programmed(turn_max_deg):
         # Curvature through the layers: the lower layers shrink more where the target
         # rises, so bending pulls toward the target instead of toward flat; the two
         # layer groups turn apart where it twists.
-        prog = curvature.program(K, mesh.faces, flat.xy, flat.direction, sigma, thick,
-                                 lim.s_min, lim.s_max, c=cp.bilayer_c,
-                                 turn_max_deg=turn_max_deg)
-        prog.added = added
-        return prog
+        return _program_on(mesh, flat, profile, thickness, K, sigma, turn_max_deg)
 
     def settle(prog, **kw):
         A, B = prog.group_tensors(flat.direction, sigma)
@@ -146,26 +140,28 @@ def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
     laid, info = flat, None
     for _ in range(RELAY_PASSES if relay else 0):
         d = np.asarray(laid.direction, dtype=float)
-        laid, info = _relaid_for(stack_on(K, d, sigma).metric(d), laid, flat, mesh, lim)
-        if laid is flat:
+        new, info = _relaid_for(stack_on(K, d, sigma).metric(d), laid, mesh, lim)
+        if new is laid:
             break
+        laid = new
         s_laid = np.clip(laid.sigma, lim.s_min, lim.s_max)
         K = curvature.target_tensor(hf, mesh, laid, s_laid)
         sigma = curvature.room_for(K, laid.direction, s_laid, thickness(s_laid), lim.s_min,
                                    lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
     lam = stack_on(K, laid.direction, sigma)
-    base = bilayer if laid is flat else _base(hf, mesh, laid, profile, thickness, K, sigma)
+    base = bilayer if laid is flat else _program_on(mesh, laid, profile, thickness, K, sigma)
     stack = _across_program(base, lam, laid, mesh.faces, cp.bilayer_c,
                             c_across=cp.across_constant)
     stack.layout, stack.across = laid, {"relaid": info}
     return stack, lam.metric(laid.direction)
 
 
-def _relaid_for(metric, laid, first, mesh, lim):
+def _relaid_for(metric, laid, mesh, lim):
     """The layout ``laid`` solved again for the stack's mean shrink ``metric`` ((m, 2, 2)):
     held across ``d``, along ``d`` at least what the stack shrinks there (the layout's
     and the room; the starfish rests at 0.10 % so, at 0.15 % with only the room held).
-    Returns (the new layout, or ``first`` where it would fold; the solve's figures)."""
+    Returns (the new layout, or ``laid`` itself where the new one would fold; the solve's
+    figures)."""
     import dataclasses
 
     from pipeline.geometry import quarter_turn
@@ -178,18 +174,19 @@ def _relaid_for(metric, laid, first, mesh, lim):
     info["flipped"] = int(np.count_nonzero(signed_areas_2d(xy, mesh.faces) <= 0))
     info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
     if info["flipped"]:
-        return first, info      # a folded layout prints nothing: the stack on the first
+        return laid, info       # a folded layout prints nothing: the stack stays
     return dataclasses.replace(laid, xy=xy, direction=d2, sigma=s2), info
 
 
-def _base(hf, mesh, laid, profile, thickness, K, sigma):
-    """The bilayer program along ``d`` of the layout ``laid`` whose shrink, with room,
-    is ``sigma``: what the stack's layers along ``d`` print."""
+def _program_on(mesh, laid, profile, thickness, K, sigma, turn_max_deg=0.0):
+    """The layer program along ``d`` of the layout ``laid`` (a FreeLayout) whose shrink,
+    with room, is ``sigma``: the bilayer, its groups turned apart up to ``turn_max_deg``
+    for the twist, and the shrink the room added (``added``)."""
     lim, cp = profile.shrink_limits, profile.curvature
-    base = curvature.program(K, mesh.faces, laid.xy, laid.direction, sigma, thickness(sigma),
-                             lim.s_min, lim.s_max, c=cp.bilayer_c)
-    base.added = _added(laid.xy, mesh.faces, np.clip(laid.sigma, lim.s_min, lim.s_max), sigma)
-    return base
+    prog = curvature.program(K, mesh.faces, laid.xy, laid.direction, sigma, thickness(sigma),
+                             lim.s_min, lim.s_max, c=cp.bilayer_c, turn_max_deg=turn_max_deg)
+    prog.added = _added(laid.xy, mesh.faces, np.clip(laid.sigma, lim.s_min, lim.s_max), sigma)
+    return prog
 
 
 def _tried(program, sim, candidates, gain=TWIST_GAIN):
