@@ -290,10 +290,11 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
 
 
 
-def direction_angles(points, xy, faces, direction):
-    """Angle (degrees) between each path segment and the direction ((m, 2), unit, or 0
-    where a triangle has none) of the triangle its midpoint lies in, and the segment
-    lengths, 0 where there is no direction to compare with: two (s,) arrays."""
+def direction_angles(points, xy, faces, *directions):
+    """Angle (degrees) between each path segment and each of ``directions`` ((m, 2),
+    unit, or 0 where a triangle has none) in the triangle its midpoint lies in, and the
+    segment lengths, 0 where there is no direction to compare with: one pair of (s,)
+    arrays per direction field (the triangles are looked up once for all)."""
     from scipy.spatial import cKDTree
     seg = [np.asarray(p) for p in points]
     a = np.concatenate([p[:-1] for p in seg])
@@ -303,9 +304,12 @@ def direction_angles(points, xy, faces, direction):
     _, f = cKDTree(cen).query(mid)
     t = b - a
     length = np.linalg.norm(t, axis=1)
-    cos = np.abs(np.einsum("sc,sc->s", t, direction[f])) / np.maximum(length, 1e-12)
-    known = np.linalg.norm(direction[f], axis=1) > 0.5
-    return np.degrees(np.arccos(np.clip(cos, 0, 1))), length * known
+    out = []
+    for direction in directions:
+        cos = np.abs(np.einsum("sc,sc->s", t, direction[f])) / np.maximum(length, 1e-12)
+        known = np.linalg.norm(direction[f], axis=1) > 0.5
+        out.append((np.degrees(np.arccos(np.clip(cos, 0, 1))), length * known))
+    return out
 
 
 def _wrap(a):
@@ -368,15 +372,13 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                                        merge_angle_deg, merge_sigma, footprint)
     info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
                         hops=np.concatenate([join_hops, hops]), samples=(samples, label, tree))
-    ang, length = direction_angles([p for p, _ in raw], xy, faces, direction)
-    info["direction_angle_deg"] = dict(zip(("p50", "p95"),
-                                           _weighted_percentiles(ang, length, [50, 95])))
+    fields = {"direction_angle_deg": direction}
     if level is not None:
         from pipeline.layout.curvature import isoline_directions
-        ang, length = direction_angles([p for p, _ in raw], xy, faces,
-                                       isoline_directions(xy, faces, level, level=(0.0, 0.0)))
-        info["isoline_angle_deg"] = dict(zip(("p50", "p95"),
-                                             _weighted_percentiles(ang, length, [50, 95])))
+        fields["isoline_angle_deg"] = isoline_directions(xy, faces, level, level=(0.0, 0.0))
+    for key, (ang, length) in zip(fields, direction_angles([p for p, _ in raw], xy, faces,
+                                                           *fields.values())):
+        info[key] = dict(zip(("p50", "p95"), _weighted_percentiles(ang, length, [50, 95])))
     # Which cure a bare patch needs: forks come from a phase the triangles cannot
     # resolve (or a field with curl), branches from the field's own singular points.
     info["pathless_triangles"] = int((pathless > 0).sum())
