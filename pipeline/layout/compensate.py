@@ -20,7 +20,7 @@ shrink.
 
 import numpy as np
 
-from pipeline.layout.free import _svd2_angles, global_system, jacobians
+from pipeline.layout.free import _rot, _svd2_angles, global_system, jacobians
 
 ITERATIONS = 60
 # Singular values this far apart name the direction the layout stretches along.
@@ -90,6 +90,4 @@ def _project_labelled(J, d, lam_lo, lam_hi, a):
 
 def nearest_rotation(B):
     """The rotation nearest each 2x2 matrix ``B`` ((m, 2, 2)): (m, 2, 2)."""
-    angle = np.arctan2(B[:, 1, 0] - B[:, 0, 1], B[:, 0, 0] + B[:, 1, 1])
-    c, s = np.cos(angle), np.sin(angle)
-    return np.stack([np.stack([c, -s], axis=1), np.stack([s, c], axis=1)], axis=1)
+    return _rot(np.arctan2(B[:, 1, 0] - B[:, 0, 1], B[:, 0, 0] + B[:, 1, 1]))

@@ -179,7 +179,9 @@ def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
         good = flat.invalid_area_fraction <= target and flat.flipped == 0
         if good and spacing == fine_mm and its == fine_iterations:
             formed[float(scale)] = (mesh, flat)
-        if scale == 1.0 and reach_of is not None:
+        # The relief as given, on the quick mesh: asked once (the plan's own mesh may
+        # try 1.0 again while it closes in from below).
+        if scale == 1.0 and reach_of is not None and "reach" not in given:
             given["reach"] = reach_of(hf, mesh, flat)
         return good
 
