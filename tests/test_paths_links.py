@@ -73,6 +73,32 @@ def test_many_hops_are_measured_in_chunks_alike(monkeypatch):
     assert whole.sum() > 0
 
 
+def test_a_hop_over_others_beyond_the_limit_is_not_measured_further(monkeypatch):
+    """Within the limit every hop's over-print is the full measure; beyond it, only some
+    length above the limit, from fewer samples asked."""
+    from pipeline.paths import links
+    rng = np.random.default_rng(5)
+    paths = [np.c_[np.linspace(0, 40, 81), np.full(81, y)] for y in np.arange(0, 10, 0.5)]
+    samples, label, tree = links.path_samples(paths, 0.5)
+    a = rng.uniform(0, 40, (300, 2)) * [1, 0.25]
+    b = a + rng.normal(0, 2, (300, 2))
+    own = np.full(300, -1)
+    whole = links.over_others(a, b, own, own, samples, label, tree, 0.5)
+    asked = []
+    near = links._near_a_third
+    def counted(q, *rest):
+        asked.append(len(q))
+        return near(q, *rest)
+    monkeypatch.setattr(links, "_near_a_third", counted)
+    capped = links.over_others(a, b, own, own, samples, label, tree, 0.5, limit=1.0)
+    within = whole <= 1.0
+    assert within.any() and (~within).any()
+    assert np.array_equal(capped[within], whole[within])
+    assert (capped[~within] > 1.0).all()
+    n = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / 0.125), 1).sum()
+    assert sum(asked) < n
+
+
 def test_a_hop_over_another_path_within_the_budget_is_taken():
     # Ends (4.4, 0) and (4.4, 2 PW) face each other across a closed path (no ends).
     ring = np.array([[3.0, PW], [10.0, PW], [10.0, 1.1 * PW], [3.0, 1.1 * PW]])

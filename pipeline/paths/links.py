@@ -35,11 +35,12 @@ def path_samples(paths, pw):
     return sample_tree(paths, pw / 4)
 
 
-def over_others(a, b, own_a, own_b, samples, label, tree, pw):
+def over_others(a, b, own_a, own_b, samples, label, tree, pw, limit=np.inf):
     """For hops from ``a`` to ``b`` ((h, 2) mm) joining paths ``own_a`` and ``own_b``
     ((h,) int, -1 for none), the length (mm, (h,)) of each whose centre line lies within
     half a path width of another path (``samples``, ``label``, ``tree`` of
-    :func:`path_samples`)."""
+    :func:`path_samples`). A hop found to run over others for more than ``limit`` mm
+    is not measured further: its figure is then only some length above ``limit``."""
     h = len(a)
     if h == 0:
         return np.zeros(0)
@@ -51,13 +52,21 @@ def over_others(a, b, own_a, own_b, samples, label, tree, pw):
     cut = np.unique(cut[(cut > 0) & (cut < h)])
     if len(cut):
         return np.concatenate([over_others(a[p], b[p], own_a[p], own_b[p], samples, label,
-                                           tree, pw) for p in np.split(np.arange(h), cut)])
+                                           tree, pw, limit) for p in np.split(np.arange(h), cut)])
     hop = np.repeat(np.arange(h), n)
-    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / n[hop]
+    step = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    t = (step + 0.5) / n[hop]
     q = a[hop] + (b - a)[hop] * t[:, None]
-    bad = _near_a_third(q, own_a[hop], own_b[hop], label, tree, 0.5 * pw,
-                        min(_FIRST, len(samples)), min(_NEIGHBOURS, len(samples)))
-    return np.bincount(hop, bad * (length / n)[hop], h)
+    count, seg = np.zeros(h, np.int64), length / n
+    # Most candidates cross other paths for far longer than the limit: every other
+    # sample first rules most of them out, and only the rest are asked the other half.
+    for part in (step % 2 == 0, step % 2 == 1):
+        ask = part & (count * seg <= limit)[hop]
+        bad = _near_a_third(q[ask], own_a[hop[ask]], own_b[hop[ask]], label, tree,
+                            0.5 * pw, min(_FIRST, len(samples)),
+                            min(_NEIGHBOURS, len(samples)))
+        count += np.bincount(hop[ask][bad], minlength=h)
+    return count * seg
 
 
 def _near_a_third(q, own_a, own_b, label, tree, reach, k, k_max):
@@ -120,7 +129,7 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
         todo = k[np.isnan(known[k])]
         if len(todo):
             over = over_others(a[todo], b[todo], ea[todo] // 2, eb[todo] // 2, samples, label,
-                               tree, pw)
+                               tree, pw, limit=over_mm)
             inside = shapely.contains(footprint, shapely.linestrings(
                 np.stack([a[todo], b[todo]], axis=1)))
             known[todo] = np.where((over <= over_mm) & inside, 4 * over, np.inf)
