@@ -265,7 +265,7 @@ def test_layers_across_are_kept_only_where_the_sheet_rests_a_fifth_closer(probe_
     def settle(start=None, iterations=None):
         settles.append(iterations)
         return _settled(probe_mm if iterations else rest_mm)
-    (program, sim), tried = _tried("bilayer", _settled(1.0), [("stack", settle)], ACROSS_GAIN)
+    (program, sim), tried = _tried("bilayer", _settled(1.0), [("stack", settle, ACROSS_GAIN)])
     assert tried["kept"] == kept and program == ("stack" if kept else "bilayer")
     assert tried["tried_at_rest"] == (rest_mm is not None) == (len(settles) == 2)
 

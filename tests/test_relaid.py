@@ -67,6 +67,28 @@ def test_a_saddle_stack_is_printed_on_its_own_layout_and_rests_closer():
     assert np.all(signed_areas_2d(prog.layout.xy, mesh.faces) > 0)
 
 
+def test_the_twist_and_the_stacks_are_probed_side_by_side_and_one_settles_on(monkeypatch):
+    """From the bilayer's rest the twist and both stacks across are probed; only the one
+    chosen settles on to rest (the twist is not settled first and then dropped)."""
+    from pipeline.input import shapes
+    from pipeline.simulation import programmed
+    from test_curvature_program import plan_layout
+    hf = shapes.hyperbolic_paraboloid(diameter_mm=60.0, height_mm=15.0)
+    profile, mesh, flat = plan_layout(hf)
+    calls = []
+    shell = programmed.simulate_shell
+
+    def counted(*args, **kw):
+        calls.append(kw.get("iterations"))
+        return shell(*args, **kw)
+    monkeypatch.setattr(programmed, "simulate_shell", counted)
+    prog, sim = programmed.simulate_free(hf, mesh, flat, profile)
+    probe = programmed.PROBE_ITERATIONS
+    assert calls == [None, probe, probe, probe, None]
+    assert prog.across["kept"] and not prog.twist["crossed_at_rest"]
+    assert len(prog.across["probe_mean_displacement_mm"]) == 2
+    assert sim.iterations > probe
+
 def test_a_terrain_stack_stays_on_the_first_layout_where_that_probes_closer():
     """The small terrain tile rests closer on the first layout: that stack is kept, and
     the plan prints the first layout."""
@@ -129,3 +151,26 @@ def _program_inputs(hf, mesh, flat, profile):
                                c=cp.bilayer_c, added_max=cp.max_added_shrink)
     bilayer = programmed._program_on(mesh, flat, profile, thickness, K, sigma)
     return K, sigma, profile, thickness, cp.turn_max_deg, bilayer
+
+
+def test_the_stretched_rotation_is_the_stretch_times_the_nearest_rotation():
+    """Written out per component, the projection gives what the matrices give: ``D R``
+    with ``R`` the rotation nearest ``D^-1 J`` (its polar factor)."""
+    from scipy.linalg import polar
+    from pipeline.layout.compensate import _stretched_rotation
+    rng = np.random.default_rng(3)
+    J = np.eye(2) + 0.3 * rng.standard_normal((50, 2, 2))
+    ang = rng.uniform(0, np.pi, 50)
+    d = np.c_[np.cos(ang), np.sin(ang)]
+    lam, a = rng.uniform(1.0, 1.4, 50), rng.uniform(1.0, 1.1, 50)
+    e = np.c_[-d[:, 1], d[:, 0]]
+    D = (lam[:, None, None] * np.einsum("mi,mj->mij", d, d)
+         + a[:, None, None] * np.einsum("mi,mj->mij", e, e))
+    want = []
+    for Dk, Jk in zip(D, J):
+        R, _ = polar(np.linalg.solve(Dk, Jk))
+        want.append(Dk @ R if np.linalg.det(R) > 0 else np.full((2, 2), np.nan))
+    want = np.array(want)
+    ok = np.isfinite(want[:, 0, 0])
+    assert ok.sum() > 40
+    assert np.allclose(_stretched_rotation(J, d, lam, a)[ok], want[ok], atol=1e-12)

@@ -20,7 +20,7 @@ shrink.
 
 import numpy as np
 
-from pipeline.layout.free import _rot, _svd2_angles, global_system, jacobians
+from pipeline.layout.free import _svd2_angles, global_system, jacobians
 
 ITERATIONS = 60
 # Singular values this far apart name the direction the layout stretches along.
@@ -79,15 +79,26 @@ def _project_labelled(J, d, lam_lo, lam_hi, a):
     distinct = s[:, 0] - np.abs(s[:, 1]) > DISTINCT
     along = np.where(distinct[:, None], np.where(first[:, None], u0, u1), d)
     along *= np.where(np.einsum("mc,mc->m", along, d) < 0, -1.0, 1.0)[:, None]
-    e = np.stack([-along[:, 1], along[:, 0]], axis=1)
     lam = np.clip(np.linalg.norm(np.einsum("mji,mj->mi", J, along), axis=1), lam_lo, lam_hi)
     a = np.broadcast_to(np.asarray(a, dtype=float), lam.shape)
-    D = (lam[:, None, None] * np.einsum("mi,mj->mij", along, along)
-         + a[:, None, None] * np.einsum("mi,mj->mij", e, e))
-    P = D @ nearest_rotation(np.linalg.solve(D, J))
+    P = _stretched_rotation(J, along, lam, a)
     return P, lam, along
 
 
-def nearest_rotation(B):
-    """The rotation nearest each 2x2 matrix ``B`` ((m, 2, 2)): (m, 2, 2)."""
-    return _rot(np.arctan2(B[:, 1, 0] - B[:, 0, 1], B[:, 0, 0] + B[:, 1, 1]))
+def _stretched_rotation(J, d, lam, a):
+    """``D R``, ``D = lam d d^T + a e e^T`` (``e`` across ``d``, (m, 2) unit) and ``R``
+    the rotation nearest ``D^-1 J`` ((m, 2, 2)): (m, 2, 2). Written out per component:
+    batched 2x2 solves and products took two thirds of the relaid layout's time on a
+    real tile."""
+    x, y = d[:, 0], d[:, 1]
+    xx, yy, xy = x * x, y * y, x * y
+    inv_l, inv_a = 1.0 / lam, 1.0 / a
+    # D^-1 = D with the stretches inverted (d and e are orthonormal).
+    i00, i01, i11 = inv_l * xx + inv_a * yy, (inv_l - inv_a) * xy, inv_l * yy + inv_a * xx
+    j00, j01, j10, j11 = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
+    angle = np.arctan2((i01 * j00 + i11 * j10) - (i00 * j01 + i01 * j11),
+                       (i00 * j00 + i01 * j10) + (i01 * j01 + i11 * j11))
+    c, s = np.cos(angle), np.sin(angle)
+    d00, d01, d11 = lam * xx + a * yy, (lam - a) * xy, lam * yy + a * xx
+    return np.stack([np.stack([d00 * c + d01 * s, d01 * c - d00 * s], axis=1),
+                     np.stack([d01 * c + d11 * s, d11 * c - d01 * s], axis=1)], axis=1)
