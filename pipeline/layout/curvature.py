@@ -28,7 +28,8 @@ dome's rim) ``d`` is turned toward the direction the target bends most
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, gaussian_filter, map_coordinates
+from scipy.ndimage import (binary_erosion, distance_transform_edt, gaussian_filter,
+                           map_coordinates)
 
 from pipeline.geometry import hat_gradients, quarter_turn
 from pipeline.mechanics.constraints import topology
@@ -137,22 +138,32 @@ def surface_derivatives(hf, smooth_mm=1.0):
     """First and second derivatives of a height field, for sampling anywhere.
 
     Returns a function ``(points (k, 2) mm) -> (fx, fy, fxx, fxy, fyy)``, each (k,).
-    Outside the footprint the field is continued by its nearest sample, so the
-    rim's derivatives are the surface's, not a cliff's.
+    Each derivative is smoothed over the footprint only (a Gaussian of ``smooth_mm``
+    weighted by the pixels whose differences see no pixel outside it), so a rim's
+    derivatives are the surface's. The field continued past the rim by its nearest
+    sample, then smoothed, met the rim with a kink: on the starfish, a cap whose arms
+    end at a slope of 0.9, the Hessian within a smoothing of the edge curled up where
+    the cap curls down, and the arm tips were programmed to rise.
     """
     z = np.asarray(hf.z, dtype=float)
     inside = np.isfinite(z)
     idx = distance_transform_edt(~inside, return_distances=False, return_indices=True)
     z = z[tuple(idx)]
-    z = gaussian_filter(z, max(smooth_mm / hf.pixel_mm, 0.0), mode="nearest")
     px = hf.pixel_mm
     # Rows run south: d/dy = -d/drow.
     z_r, z_c = np.gradient(z, px)
     fx, fy = z_c, -z_r
-    fxx = np.gradient(fx, px, axis=1)
-    fxy = np.gradient(fx, px, axis=0) * -1.0
-    fyy = np.gradient(fy, px, axis=0) * -1.0
-    fields = (fx, fy, fxx, fxy, fyy)
+    fields = (fx, fy, np.gradient(fx, px, axis=1), -np.gradient(fx, px, axis=0),
+              -np.gradient(fy, px, axis=0))
+    sigma = smooth_mm / px
+    if sigma > 0:
+        # Second differences reach two pixels: nearer the rim they see the continuation.
+        seen = binary_erosion(inside, iterations=2, border_value=1)
+        if not seen.any():
+            seen = inside
+        weight = np.maximum(gaussian_filter(seen.astype(float), sigma, mode="nearest"), 1e-12)
+        fields = tuple(gaussian_filter(np.where(seen, f, 0.0), sigma, mode="nearest") / weight
+                       for f in fields)
 
     def at(points):
         r, c = hf.rc(np.asarray(points, dtype=float))
