@@ -42,6 +42,7 @@ PLAN_COLUMNS = [
     ("holds smoothed to", lambda n, r: None if r.get("hold_smooth_mm") is None else
      "%g mm: %s" % (r["hold_smooth_mm"], _pct(r.get("hold_displacement")))),
     ("traces", lambda n, r: _traces(r)),
+    ("trace ends inside", lambda n, r: r.get("ends_inside")),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
     ("overlap", lambda n, r: _pct(r.get("overlap"))),
@@ -136,7 +137,10 @@ def render(groups):
                 "height), started flat with the curvature programmed through the layers; "
                 "`traces` a + b where the lower and upper layer groups print paths of their own "
                 "(turned apart by the twist), `+ c across` where two layers (the second and second "
-                "last) print paths across the others' (the curvature across them). "
+                "last) print paths across the others' (the curvature across them); `trace "
+                "ends inside`: the lower layers' trace ends more than a path width from the "
+                "outline, where the stripes fork and no hop can join them (the traces are at "
+                "least half as many). "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
                 "tile again at the size the time targets name, with the default method; rows `lowered "

@@ -128,6 +128,7 @@ print(json.dumps({
     "coarse_iterations": r["simulation"]["coarse_iterations"],
     "simulated_vertices": r["simulation"]["sheet_vertices"],
     "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
+    "ends_inside": r["toolpath"].get("ends_inside"),
     "upper_traces": g.get("upper_traces"),
     "twist_kept": ((r.get("curvature") or {}).get("twist") or {}).get("kept"),
     "across_kept": ((r.get("curvature") or {}).get("across") or {}).get("kept"),

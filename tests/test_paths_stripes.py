@@ -34,6 +34,8 @@ def _field(kind, c):
     elif kind == "turn":           # turns by 90 degrees across the sheet
         a = (c[:, 0] + 30) / 60 * np.pi / 2
         d = np.stack([np.cos(a), np.sin(a)], 1)
+    elif kind == "parallel":       # no curl: straight paths from edge to edge
+        d = np.tile([1.0, 0.0], (len(c), 1))
     elif kind == "monkey":         # a monkey saddle's: paths fan out, forking everywhere
         a = -2 * np.arctan2(c[:, 1], c[:, 0])
         d = np.stack([np.cos(a), np.sin(a)], 1)
@@ -64,6 +66,16 @@ def test_paths_cover_the_sheet(kind):
 def test_paths_cover_a_sheet_with_two_half_singularities():
     assert _plan("two_half")["coverage"] > 0.95
 
+
+def test_the_trace_ends_inside_the_sheet_bound_the_traces_from_below():
+    """Straight paths end on the sheet's edge only, where hops join them into one trace;
+    paths that turn (a field with curl) fork inside, and each fork leaves an end no hop
+    can join: at least half as many traces as such ends."""
+    parallel = _plan("parallel")
+    assert parallel["ends_inside"] == 0 and parallel["traces"] == 1
+    for kind in ("turn", "monkey"):
+        info = _plan(kind)
+        assert info["ends_inside"] > 10 and 2 * info["traces"] >= info["ends_inside"]
 
 def _drawn(xy, faces, normal, width):
     phase, X, solved = stripes.stripe_phase_at_width(xy, faces, normal, width,

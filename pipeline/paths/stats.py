@@ -54,9 +54,22 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, sa
                            "p95": float(pct[2])},
             "coverage": float(covered.mean()) if len(covered) else 0.0,
             "overlap": float(twice.mean()) if len(covered) else 0.0,
-            "loops_and_arcs": len(raw), **hop,
+            "loops_and_arcs": len(raw), "ends_inside": _ends_inside(traces, poly, pw), **hop,
             **({} if level is None else {"isoline_angle_deg": dict(zip(("p50", "p95"), (
                 _weighted_percentiles(*isoline_angles(xy, faces, level, u), [50, 95]))))})}
+
+
+def _ends_inside(traces, poly, pw):
+    """Trace ends farther than a path width from the outline ``poly``: where stripes
+    fork or the field has a singular point, a path ends between others and no hop can
+    join it, so the traces can be no fewer than half these (a closed trace has none)."""
+    import shapely
+    ends = [p[[0, -1]] for p in traces
+            if len(p) > 1 and not np.allclose(p[0], p[-1], atol=1e-9)]
+    if not ends or poly is None:
+        return 0
+    far = shapely.distance(poly.boundary, shapely.points(np.concatenate(ends))) > pw
+    return int(np.count_nonzero(far))
 
 
 def _to_another(points, own, label, tree, reach, k):
