@@ -77,6 +77,14 @@ def test_the_trace_ends_inside_the_sheet_bound_the_traces_from_below():
         info = _plan(kind)
         assert info["ends_inside"] > 10 and 2 * info["traces"] >= info["ends_inside"]
 
+def test_segments_chain_into_polylines_and_rings_in_a_fixed_order():
+    """An open polyline is walked from its lower free end, a ring from end 0 of its
+    lowest segment; open ones first (end ``e`` is end ``e % 2`` of segment ``e // 2``)."""
+    keys = np.array([[1, 2], [5, 3], [0, 1], [3, 4], [4, 5], [7, 8]])
+    got = [(list(np.asarray(steps)), closed) for steps, closed in stripes.chain(keys)]
+    assert got == [([1, 5], False), ([10], False), ([2, 6, 8], True)]
+    assert stripes.chain(np.zeros((0, 2), np.int64)) == []
+
 def _drawn(xy, faces, normal, width):
     phase, X, solved = stripes.stripe_phase_at_width(xy, faces, normal, width,
                                                      stripes.WIDTH_TOL)

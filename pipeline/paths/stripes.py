@@ -221,8 +221,12 @@ def chain(keys):
     """Join segments that share end points into polylines (either direction).
 
     Returns a list of (the ends each segment is entered at, in order (end ``e`` is end
-    ``e % 2`` of segment ``e // 2``), closed)."""
+    ``e % 2`` of segment ``e // 2``), closed): open polylines first, each walked from
+    its lower free end, in the order of that end; then the closed ones, each entered
+    at end 0 of its lowest segment, in the order of that segment."""
     s = len(keys)
+    if s == 0:
+        return []
     flat = keys.ravel()
     order = np.argsort(flat, kind="stable")
     sk = flat[order]
@@ -230,29 +234,66 @@ def chain(keys):
     partner = np.full(2 * s, -1, dtype=np.int64)
     partner[order[same]] = order[same + 1]
     partner[order[same + 1]] = order[same]
-    partner = partner.tolist()
-    seen = bytearray(s)
-    out = []
-    ends = [e for e in range(2 * s) if partner[e] < 0]
-    for start_end in ends + list(range(0, 2 * s, 2)):
-        seg = start_end // 2
-        if seen[seg]:
-            continue
-        steps, e, closed = [], start_end, False
-        while True:
-            seg = e // 2
-            seen[seg] = 1
-            steps.append(e)
-            other = e ^ 1
-            nxt = partner[other]
-            if nxt < 0:
-                break
-            if seen[nxt // 2]:
-                closed = nxt // 2 == steps[0] // 2
-                break
-            e = nxt
-        out.append((steps, closed))
+    ends = np.arange(2 * s)
+    # Entered at end e, the walk leaves by e ^ 1 and enters the next segment at succ[e].
+    succ = partner[ends ^ 1]
+    last, rank, cyclic = _walks(succ)
+    # Open polylines: from each free end, the walk leaves by the free end ``last ^ 1``.
+    free = np.flatnonzero(partner < 0)
+    start = free[free <= (last[free] ^ 1)]
+    out = _ordered(start, last, rank, ~cyclic, closed=False)
+    if cyclic.any():
+        # A ring's two ways round: the one entered at end 0 of its lowest segment (its
+        # least entered end, even) is walked, cut before that end.
+        least = _ring_least(succ, cyclic)
+        start = np.flatnonzero(cyclic & (least == ends))
+        start = start[start % 2 == 0]
+        cut = succ.copy()
+        ring = cyclic & (least % 2 == 0)
+        cut[~ring] = -1
+        cut[np.isin(cut, start) & ring] = -1
+        last, rank, _ = _walks(cut)
+        out += _ordered(start, last, rank, ring, closed=True)
     return out
+
+
+def _walks(succ):
+    """Where each walk along ``succ`` ((q,) next node, -1 at an end) ends, how many steps
+    it takes, and which nodes lie on rings (their walks never end): pointer jumping,
+    (q,), (q,), (q,) bool."""
+    q = len(succ)
+    jump = np.where(succ >= 0, succ, np.arange(q))
+    rank = (succ >= 0).astype(np.int64)
+    for _ in range(max(int(np.ceil(np.log2(max(q, 2)))) + 1, 1)):
+        rank = rank + rank[jump]
+        jump = jump[jump]
+    return jump, rank, succ[jump] >= 0
+
+
+def _ring_least(succ, cyclic):
+    """Each ring node's least node round its ring (others: themselves): (q,)."""
+    q = len(succ)
+    least = np.arange(q)
+    jump = np.where(cyclic, succ, least)
+    for _ in range(max(int(np.ceil(np.log2(max(q, 2)))) + 1, 1)):
+        least = np.minimum(least, least[jump])
+        jump = jump[jump]
+    return least
+
+
+def _ordered(start, last, rank, member, closed):
+    """The walks from ``start`` (ascending), each as (its nodes in order, ``closed``): a
+    node belongs to the walk that ends where its own does."""
+    start = np.sort(start)
+    if not len(start):
+        return []
+    which = np.full(len(last), -1, dtype=np.int64)
+    which[last[start]] = np.arange(len(start))
+    nodes = np.flatnonzero(member & (which[last] >= 0))
+    walk = which[last[nodes]]
+    nodes = nodes[np.lexsort((-rank[nodes], walk))]
+    cuts = np.cumsum(np.bincount(walk, minlength=len(start)))[:-1]
+    return [(steps, closed) for steps in np.split(nodes, cuts)]
 
 
 def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
