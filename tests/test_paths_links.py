@@ -58,15 +58,20 @@ def test_hop_overprint_counts_only_the_length_over_a_third_path():
     assert abs(across["hop_overprint_mm"] - PW) <= PW / 4
 
 
+def _random_hops(seed):
+    """300 random hops over 20 parallel paths half a millimetre apart: (a, b, own, the
+    paths' samples, labels and tree)."""
+    from pipeline.paths import links
+    rng = np.random.default_rng(seed)
+    paths = [np.c_[np.linspace(0, 40, 81), np.full(81, y)] for y in np.arange(0, 10, 0.5)]
+    a = rng.uniform(0, 40, (300, 2)) * [1, 0.25]
+    return (a, a + rng.normal(0, 2, (300, 2)), np.full(300, -1)) + links.path_samples(paths, 0.5)
+
+
 def test_many_hops_are_measured_in_chunks_alike(monkeypatch):
     """Hops measured a chunk at a time (as on a real tile) give what all at once gives."""
     from pipeline.paths import links
-    rng = np.random.default_rng(4)
-    paths = [np.c_[np.linspace(0, 40, 81), np.full(81, y)] for y in np.arange(0, 10, 0.5)]
-    samples, label, tree = links.path_samples(paths, 0.5)
-    a = rng.uniform(0, 40, (300, 2)) * [1, 0.25]
-    b = a + rng.normal(0, 2, (300, 2))
-    own = np.full(300, -1)
+    a, b, own, samples, label, tree = _random_hops(4)
     whole = links.over_others(a, b, own, own, samples, label, tree, 0.5)
     monkeypatch.setattr(links, "_CHUNK_POINTS", 50)
     assert np.allclose(links.over_others(a, b, own, own, samples, label, tree, 0.5), whole)
@@ -77,15 +82,11 @@ def test_a_hop_over_others_beyond_the_limit_is_not_measured_further(monkeypatch)
     """Within the limit every hop's over-print is the full measure; beyond it, only some
     length above the limit, from fewer samples asked."""
     from pipeline.paths import links
-    rng = np.random.default_rng(5)
-    paths = [np.c_[np.linspace(0, 40, 81), np.full(81, y)] for y in np.arange(0, 10, 0.5)]
-    samples, label, tree = links.path_samples(paths, 0.5)
-    a = rng.uniform(0, 40, (300, 2)) * [1, 0.25]
-    b = a + rng.normal(0, 2, (300, 2))
-    own = np.full(300, -1)
+    a, b, own, samples, label, tree = _random_hops(5)
     whole = links.over_others(a, b, own, own, samples, label, tree, 0.5)
     asked = []
     near = links._near_a_third
+
     def counted(q, *rest):
         asked.append(len(q))
         return near(q, *rest)
