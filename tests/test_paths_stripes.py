@@ -85,6 +85,19 @@ def test_segments_chain_into_polylines_and_rings_in_a_fixed_order():
     assert got == [([1, 5], False), ([10], False), ([2, 6, 8], True)]
     assert stripes.chain(np.zeros((0, 2), np.int64)) == []
 
+def test_a_piece_shorter_than_a_path_width_is_not_printed(monkeypatch):
+    """A stripe grazing a triangle at the outline leaves a piece a fraction of a path
+    width long: printed, it would be a trace of its own, a blob; it is left out."""
+    xy, faces = _disk()
+    path = np.c_[np.linspace(-10, 10, 41), np.zeros(41)]
+    stub = np.array([[5.0, 8.0], [5.2, 8.0]])
+    pieces = [(path, np.full(40, 0.1), False), (stub, np.full(1, 0.1), False)]
+    monkeypatch.setattr(stripes, "plan_stripes", lambda *a, **k: (
+        pieces, np.zeros(len(faces), np.int8), 0.0))
+    tp = stripe_toolpaths(xy, faces, np.tile([1.0, 0.0], (len(faces), 1)),
+                          np.full(len(faces), 0.1), WIDTH, retract=0)
+    assert len(tp.traces) == 1 and np.allclose(tp.traces[0][[0, -1]], path[[0, -1]])
+
 def _drawn(xy, faces, normal, width):
     phase, X, solved = stripes.stripe_phase_at_width(xy, faces, normal, width,
                                                      stripes.WIDTH_TOL)

@@ -353,6 +353,11 @@ def direction_angles(points, xy, faces, *directions):
     return out
 
 
+def _length(points):
+    """Length (mm) of the polyline ``points`` ((k, 2) mm)."""
+    return float(np.hypot(*np.diff(points, axis=0).T).sum())
+
+
 def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
@@ -401,6 +406,10 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     chains, pathless, bare_mm2 = plan_stripes(xy, faces, direction, sigma, width_mm, refine)
     if retract > 0:
         chains = retract_ends(chains, width_mm, retract)
+    # A piece shorter than a path width is a blob, not a path: where stripes graze the
+    # outline's triangles (the 175 mm dome's rim left 14 of 0.03-0.3 mm beside its one
+    # trace) each would print a travel and a retraction for less than a bead's width.
+    chains = [c for c in chains if c[2] or _length(c[0]) >= width_mm] or chains
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
     outline = _outline_polygon(xy, boundary_loop(faces))
     footprint = outline.buffer(0.25 * width_mm)
