@@ -264,10 +264,15 @@ def _walks(succ):
     q = len(succ)
     jump = np.where(succ >= 0, succ, np.arange(q))
     rank = (succ >= 0).astype(np.int64)
-    for _ in range(max(int(np.ceil(np.log2(max(q, 2)))) + 1, 1)):
+    for _ in range(_doublings(q)):
         rank = rank + rank[jump]
         jump = jump[jump]
     return jump, rank, succ[jump] >= 0
+
+
+def _doublings(q):
+    """Jumps, each doubling the reach, that cover any walk over ``q`` nodes."""
+    return int(np.ceil(np.log2(max(q, 2)))) + 1
 
 
 def _ring_least(succ, cyclic):
@@ -275,7 +280,7 @@ def _ring_least(succ, cyclic):
     q = len(succ)
     least = np.arange(q)
     jump = np.where(cyclic, succ, least)
-    for _ in range(max(int(np.ceil(np.log2(max(q, 2)))) + 1, 1)):
+    for _ in range(_doublings(q)):
         least = np.minimum(least, least[jump])
         jump = jump[jump]
     return least
