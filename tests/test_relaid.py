@@ -89,6 +89,7 @@ def test_the_twist_and_the_stacks_are_probed_side_by_side_and_one_settles_on(mon
     assert len(prog.across["probe_mean_displacement_mm"]) == 2
     assert sim.iterations > probe
 
+
 def test_a_terrain_stack_stays_on_the_first_layout_where_that_probes_closer():
     """The small terrain tile rests closer on the first layout: that stack is kept, and
     the plan prints the first layout."""
