@@ -44,6 +44,7 @@ def test_a_cap_keeps_its_curvature_up_to_its_rim(smooth_mm):
             k = curvature.normal_curvature(der, pts, direction)
             assert np.allclose(k, 1.0 / radius, rtol=0.05)
 
+
 def test_a_bowl_is_negative_and_a_saddle_has_both_signs():
     hf = shapes.dome(diameter_mm=100.0, height_mm=25.0)
     bowl = type(hf)(z=np.nanmax(hf.z) - hf.z, pixel_mm=hf.pixel_mm)
