@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from pipeline.geometry import HeightField, signed_areas_2d
+from pipeline.layout import curvature
 from pipeline.layout.compensate import relaid
 from pipeline.meshing.grid import build_grid_mesh
 from test_laminate import small_terrain
@@ -123,8 +124,9 @@ def test_a_relaid_layout_that_would_fold_leaves_the_stack_on_the_layout_before(f
         return xy, d, sigma, info
     compensate.relaid = folding
     try:
-        stack, _ = programmed._across_stack(hf, mesh, flat,
-                                            *_program_inputs(hf, mesh, flat, profile))
+        stack, _ = programmed._across_stack(
+            curvature.surface_derivatives(hf, curvature.PROGRAM_SMOOTH_MM), mesh, flat,
+            *_program_inputs(hf, mesh, flat, profile))
     finally:
         compensate.relaid = original
     assert stack.across["relaid"]["flipped"] > 0
@@ -138,7 +140,6 @@ def test_a_relaid_layout_that_would_fold_leaves_the_stack_on_the_layout_before(f
 def _program_inputs(hf, mesh, flat, profile):
     """K, sigma, profile, thickness, turn and the bilayer program, as simulate_free makes
     them for the stack."""
-    from pipeline.layout import curvature
     from pipeline.simulation import programmed
     from pipeline.simulation.shell import thickness_for
     lim, cp = profile.shrink_limits, profile.curvature

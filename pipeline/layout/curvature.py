@@ -300,7 +300,7 @@ def rest_angles(xy, faces, shrink, K, top=None):
     return theta
 
 
-def target_tensor(hf, mesh, flat, sigma, smooth_mm=PROGRAM_SMOOTH_MM):
+def target_tensor(hf, mesh, flat, sigma, smooth_mm=PROGRAM_SMOOTH_MM, derivs=None):
     """The target's curvature (second fundamental form, positive for a dome) carried
     into each triangle's frame of :func:`rest_angles`: (m, 2, 2) 1/mm.
 
@@ -308,6 +308,8 @@ def target_tensor(hf, mesh, flat, sigma, smooth_mm=PROGRAM_SMOOTH_MM):
     is admissible; its horizontal part ``J`` pulls the height field's Hessian back:
     ``K = -J^T H J / sqrt(1 + |grad z|^2)``. What a sheet would need to be programmed
     with to settle exactly on the target; :func:`program` can give only ``d^T K d``.
+    ``derivs``: :func:`surface_derivatives` of ``hf`` at ``smooth_mm``, where a caller
+    reads the same target on several layouts (smoothing the field is most of the work).
     """
     V = np.asarray(mesh.vertices, dtype=float)
     faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -320,7 +322,8 @@ def target_tensor(hf, mesh, flat, sigma, smooth_mm=PROGRAM_SMOOTH_MM):
     sides = sides - sigma[:, None, None] * d[:, :, None] * along[:, None, :]
     J = np.stack([T[:, 1, :2] - T[:, 0, :2], T[:, 2, :2] - T[:, 0, :2]], axis=2)
     J = J @ np.linalg.inv(sides)
-    fx, fy, fxx, fxy, fyy = surface_derivatives(hf, smooth_mm)(T.mean(axis=1)[:, :2])
+    derivs = derivs or surface_derivatives(hf, smooth_mm)
+    fx, fy, fxx, fxy, fyy = derivs(T.mean(axis=1)[:, :2])
     H = np.stack([np.stack([fxx, fxy], axis=1), np.stack([fxy, fyy], axis=1)], axis=1)
     return -np.einsum("mji,mjk,mkl->mil", J, H, J) / np.sqrt(1 + fx * fx + fy * fy)[:, None, None]
 

@@ -56,7 +56,9 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
     def thickness(s):
         return thickness_for(s, profile.shrink_curve, profile.layers,
                              profile.thickness_mm.min, profile.thickness_mm.max)
-    K = curvature.target_tensor(hf, mesh, flat, laid)
+    # One read of the target serves the first layout and every relaid one.
+    derivs = curvature.surface_derivatives(hf, curvature.PROGRAM_SMOOTH_MM)
+    K = curvature.target_tensor(hf, mesh, flat, laid, derivs=derivs)
     # Where the layout leaves no shrink to bend with, a little is added along d.
     sigma = curvature.room_for(K, flat.direction, laid, thickness(laid), lim.s_min,
                                lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
@@ -92,7 +94,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
         # On the layout solved again for the stack's shrink, and on the first one (relaid,
         # the saddles, the starfish and the elongated peak rest 40-80 % closer; three
         # islands and the small terrains 5-35 % further).
-        stacks = [_across_stack(hf, mesh, flat, K, sigma, profile, thickness,
+        stacks = [_across_stack(derivs, mesh, flat, K, sigma, profile, thickness,
                                 turn if twist else 0.0, bilayer, relay) for relay in (True, False)]
         candidates += [(stack, _settle_stack(mesh, stack, metric), ACROSS_GAIN)
                        for stack, metric in stacks]
@@ -149,7 +151,7 @@ def _settle_stack(mesh, stack, metric):
     return settle
 
 
-def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
+def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
                   relay=True):
     """The program with two layers across ``d`` (:mod:`pipeline.layout.laminate`), on
     the layout solved again for the shrink that stack prints (:func:`_relaid_for`,
@@ -160,6 +162,7 @@ def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
     from flat; the smoothed coast tile 0.54 against 0.48 %). Without ``relay`` the stack
     is made on the first layout, its layers along ``d`` those of ``bilayer`` (the program
     already made there).
+    ``derivs``: the target's :func:`pipeline.layout.curvature.surface_derivatives`.
     Returns (program with ``layout`` and ``across = {"relaid": ...}``, its mean shrink
     tensor (m, 2, 2))."""
     lim, cp, n = profile.shrink_limits, profile.curvature, profile.layers
@@ -175,7 +178,7 @@ def _across_stack(hf, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
             break
         laid = new
         s_laid = np.clip(laid.sigma, lim.s_min, lim.s_max)
-        K = curvature.target_tensor(hf, mesh, laid, s_laid)
+        K = curvature.target_tensor(None, mesh, laid, s_laid, derivs=derivs)
         sigma = curvature.room_for(K, laid.direction, s_laid, thickness(s_laid), lim.s_min,
                                    lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
     lam = stack_on(K, laid.direction, sigma)
