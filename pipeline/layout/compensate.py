@@ -20,7 +20,7 @@ shrink.
 
 import numpy as np
 
-from pipeline.layout.free import _svd2_angles, global_system, jacobians
+from pipeline.layout.free import _svd2_angles, global_system, jacobians, local_global
 
 ITERATIONS = 60
 # Singular values this far apart name the direction the layout stretches along.
@@ -41,25 +41,19 @@ def relaid(vertices, faces, xy, direction, across, min_shrink, s_min, s_max,
     V = np.asarray(vertices, dtype=float)
     faces = np.asarray(faces, dtype=np.int64)
     m = len(faces)
-    G, GtW, lu, eps, area = global_system(V, faces)
+    system = global_system(V, faces)
     lam_lo = 1.0 / (1.0 - np.maximum(s_min, np.asarray(min_shrink, dtype=float)))
     lam_hi = 1.0 / (1.0 - s_max)
     a = 1.0 / (1.0 - np.asarray(across, dtype=float))
     X0 = np.asarray(xy, dtype=float)
-    X, d = X0.copy(), np.asarray(direction, dtype=float)
-    mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
-    it, residual = 0, np.inf
-    for it in range(1, iterations + 1):
-        J = jacobians(G, X, m)
-        P, lam, d = _project_labelled(J, d, lam_lo, lam_hi, a)
-        residual = float(np.sqrt(np.einsum("f,fij,fij->", area, J - P, J - P) / area.sum()))
-        Xn = lu.solve(GtW @ np.transpose(P, (0, 2, 1)).reshape(2 * m, 2) + eps * X)
-        Xn += X.mean(axis=0) - Xn.mean(axis=0)
-        move = float(np.abs(Xn - X).max())
-        X = Xn
-        if move < tol * mean_edge:
-            break
-    _, lam, d = _project_labelled(jacobians(G, X, m), d, lam_lo, lam_hi, a)
+    # Each projection labels the print direction from the one before.
+    d = [np.asarray(direction, dtype=float)]
+
+    def labelled(J):
+        P, _, d[0] = _project_labelled(J, d[0], lam_lo, lam_hi, a)
+        return P
+    X, it, residual, _ = local_global(system, X0.copy(), labelled, iterations, tol)
+    _, lam, d = _project_labelled(jacobians(system[0], X, m), d[0], lam_lo, lam_hi, a)
     return X, d, 1.0 - 1.0 / lam, {"iterations": it, "residual": residual,
                                     "max_move_mm": float(np.abs(X - X0).max())}
 

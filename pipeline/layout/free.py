@@ -181,23 +181,12 @@ def flatten_free(mesh, s_min=0.0, s_max=0.34, iterations=200, tol=1e-6, start_xy
     faces = np.asarray(mesh.faces, dtype=np.int64)
     m = len(faces)
     lam_lo, lam_hi = 1.0 / (1.0 - s_min), 1.0 / (1.0 - s_max)
-    G, GtW, lu, eps, area = global_system(V, faces)
+    system = global_system(V, faces)
+    G, area = system[0], system[4]
     X = (np.asarray(start_xy, dtype=float) if start_xy is not None else V[:, :2]).copy()
-    mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
     setup = time.perf_counter() - t0
-    it, residual, converged = 0, np.inf, False
-    for it in range(1, iterations + 1):
-        J = jacobians(G, X, m)
-        P, _, _ = project(J, lam_lo, lam_hi)
-        residual = float(np.sqrt(np.einsum("f,fij,fij->", area, J - P, J - P) / area.sum()))
-        # G X stacks each triangle's J as two rows (columns of J^T): rhs = G^T W P^T.
-        rhs = GtW @ np.transpose(P, (0, 2, 1)).reshape(2 * m, 2)
-        Xn = lu.solve(rhs + eps * X)
-        move = float(np.abs(Xn - X).max())
-        X = Xn - Xn.mean(axis=0) + X.mean(axis=0)
-        if move < tol * mean_edge:
-            converged = True
-            break
+    X, it, residual, converged = local_global(
+        system, X, lambda J: project(J, lam_lo, lam_hi)[0], iterations, tol)
     J = jacobians(G, X, m)
     _, lam, U = project(J, lam_lo, lam_hi)
     d = U[:, :, 0]
@@ -235,6 +224,32 @@ def global_system(V, faces):
     eps = 1e-8 * float(M.diagonal().mean())
     lu = splu(M + eps * sp.identity(n, format="csc"), permc_spec="MMD_AT_PLUS_A")
     return G, GtW, lu, eps, area
+
+
+def local_global(system, X, project_jacobians, iterations, tol):
+    """Local/global iterations from the layout ``X`` ((n, 2) mm): each triangle's Jacobian
+    ``J`` projected onto what it may be (``project_jacobians(J)`` -> (m, 2, 2)), then the
+    layout whose Jacobians come nearest those (``system`` of :func:`global_system`),
+    until the largest vertex move is below ``tol`` mean edge lengths or ``iterations``.
+    Returns (X, iterations, the area-weighted residual of the last projection, converged).
+    """
+    G, GtW, lu, eps, area = system
+    m = len(area)
+    mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
+    it, residual, converged = 0, np.inf, False
+    for it in range(1, iterations + 1):
+        J = jacobians(G, X, m)
+        P = project_jacobians(J)
+        residual = float(np.sqrt(np.einsum("f,fij,fij->", area, J - P, J - P) / area.sum()))
+        # G X stacks each triangle's J as two rows (columns of J^T): rhs = G^T W P^T.
+        rhs = GtW @ np.transpose(P, (0, 2, 1)).reshape(2 * m, 2)
+        Xn = lu.solve(rhs + eps * X)
+        move = float(np.abs(Xn - X).max())
+        X = Xn - Xn.mean(axis=0) + X.mean(axis=0)
+        if move < tol * mean_edge:
+            converged = True
+            break
+    return X, it, residual, converged
 
 
 def _across_strain(J, d):
