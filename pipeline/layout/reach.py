@@ -11,7 +11,7 @@ Measured on the free method's plans (mean displacement over the diameter), ``rea
 
 | input | reach p90 | displacement |
 |---|---|---|
-| reference shapes (dome, starfish, saddles, islands, terrain tile) | 0.03-0.20 | 0.05-0.29 % |
+| reference shapes (dome, starfish, saddles, islands, terrain tile) | 0.03-0.20 | 0.03-0.29 % |
 | coast tile fitted to the metric (relief 0.29) | 1.42 | 5.3 % |
 | Vancouver tile fitted to the metric (relief 0.34) | 0.83 | 3.9 % |
 | Vancouver, full relief, smoothed 4 / 5 / 6 mm | 0.48 / 0.39 / 0.31 | 1.40 / 0.85 / 0.60 % |
