@@ -32,6 +32,7 @@ from pipeline.problems import (BLOCKING, INVALID_AREA_WARN, fold_area_fraction,
                                free_layout_problems, hold_problems, layout_problems,
                                other_method_problems, relief_problems,
                                simulation_problems)
+from pipeline.paths.sheet import Sheet
 from pipeline.paths.stripes import stripe_toolpaths
 from pipeline.simulation.forward import simulate
 from pipeline.simulation import inverted
@@ -384,10 +385,13 @@ def _free_sheet(result, hf, profile, stage, timing):
     sigma = result.curvature.sigma
     # Crossed layer groups print their own stripes; the lower group's are the plan's
     # paths (pictures, screen print), the upper group's are printed above them.
+    sheet = Sheet(result.xy_bed, mesh.faces)
+
     def stripes(direction, shrink=sigma):
         return stripe_toolpaths(result.xy_bed, mesh.faces, direction, shrink,
                                 profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
-                                merge_sigma=tp.merge_sigma, level=mesh.vertex_level)
+                                merge_sigma=tp.merge_sigma, level=mesh.vertex_level,
+                                sheet=sheet)
     lower, upper = result.curvature.group_directions(flat.direction)
     result.toolpaths = stripes(lower)
     result.upper_toolpaths = stripes(upper) if result.curvature.crossed else None

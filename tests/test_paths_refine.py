@@ -4,6 +4,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from pipeline.paths import refine, stripes
+from pipeline.paths.sheet import Sheet
 
 WIDTH = 0.5
 
@@ -41,9 +42,10 @@ def test_forks_are_split_until_their_bare_patch_is_a_sixteenth():
     c = xy[faces].mean(axis=1)
     a = 0.6 * np.sin(2 * np.pi * c[:, 0] / 6)
     normal = np.stack([-np.sin(a), np.cos(a)], axis=1)
-    phase, X = stripes.stripe_phase(xy, faces, normal, WIDTH)
+    phase, X = stripes.stripe_phase(Sheet(xy, faces), normal, WIDTH)
     _, bare0 = stripes.corner_phases(xy, faces, phase, X, WIDTH)
     assert (bare0 > 0).sum() > 5
-    xy2, faces2, _, _, parent, _, bare = refine.refine_phase(xy, faces, normal, phase, X, WIDTH)
+    xy2, faces2, _, _, parent, _, bare = refine.refine_phase(Sheet(xy, faces), normal, phase, X,
+                                                           WIDTH)
     small = np.abs(stripes.signed_areas_2d(xy, faces)).min() / 64 * 1.001
     assert bare.any() and np.all(np.abs(stripes.signed_areas_2d(xy2, faces2[bare > 0])) <= small)

@@ -7,6 +7,7 @@ import scipy.sparse as sp
 from scipy.spatial import Delaunay
 
 from pipeline.paths import stripes
+from pipeline.paths.sheet import Sheet
 from pipeline.paths.stripes import plan_stripes, stripe_toolpaths
 
 WIDTH = 0.5
@@ -92,14 +93,14 @@ def test_a_piece_shorter_than_a_path_width_is_not_printed(monkeypatch):
     path = np.c_[np.linspace(-10, 10, 41), np.zeros(41)]
     stub = np.array([[5.0, 8.0], [5.2, 8.0]])
     pieces = [(path, np.full(40, 0.1), False), (stub, np.full(1, 0.1), False)]
-    monkeypatch.setattr(stripes, "plan_stripes", lambda *a, **k: (
-        pieces, np.zeros(len(faces), np.int8), 0.0))
+    monkeypatch.setattr(stripes, "plan_stripes", lambda *a, **k: stripes.Stripes(
+        pieces, np.zeros(len(faces), np.int8), 0.0, [np.zeros(40, int), np.zeros(1, int)]))
     tp = stripe_toolpaths(xy, faces, np.tile([1.0, 0.0], (len(faces), 1)),
                           np.full(len(faces), 0.1), WIDTH, retract=0)
     assert len(tp.traces) == 1 and np.allclose(tp.traces[0][[0, -1]], path[[0, -1]])
 
 def _drawn(xy, faces, normal, width):
-    phase, X, solved = stripes.stripe_phase_at_width(xy, faces, normal, width,
+    phase, X, solved = stripes.stripe_phase_at_width(Sheet(xy, faces), normal, width,
                                                      stripes.WIDTH_TOL)
     u, bare = stripes.corner_phases(xy, faces, phase, X, solved)
     return stripes.drawn_spacing(xy, faces, u, bare == 0)
@@ -156,13 +157,14 @@ def test_each_segment_carries_the_shrink_of_its_triangle():
     xy, faces = _disk()
     c = xy[faces].mean(axis=1)
     sigma = 0.05 + 0.25 * (c[:, 0] + 30) / 60
-    chains, _, _ = plan_stripes(xy, faces, _field("turn", c), sigma, WIDTH)
+    drawn = plan_stripes(xy, faces, _field("turn", c), sigma, WIDTH)
     tri = Delaunay(xy)                 # the same triangles, in the same order
-    assert len(chains) > 50
-    for p, sg, closed in chains:
+    assert len(drawn.chains) > 50
+    for (p, sg, closed), face in zip(drawn.chains, drawn.faces):
         q = np.vstack([p, p[:1]]) if closed else p
         f = tri.find_simplex((q[1:] + q[:-1]) / 2)
-        assert np.all(f >= 0) and np.array_equal(sg, sigma[f])
+        # The shrink, and the triangle the direction angles compare the segment with.
+        assert np.all(f >= 0) and np.array_equal(sg, sigma[f]) and np.array_equal(face, f)
 
 
 def test_the_stripe_phase_is_the_same_every_run():
@@ -170,8 +172,8 @@ def test_the_stripe_phase_is_the_same_every_run():
     xy, faces = _disk()
     d = _field("two_half", xy[faces].mean(axis=1))
     normal = np.stack([-d[:, 1], d[:, 0]], axis=1)
-    first, _ = stripes.stripe_phase(xy, faces, normal, 0.48)
-    again, _ = stripes.stripe_phase(xy, faces, normal, 0.48)
+    first, _ = stripes.stripe_phase(Sheet(xy, faces), normal, 0.48)
+    again, _ = stripes.stripe_phase(Sheet(xy, faces), normal, 0.48)
     assert np.array_equal(first, again)
 
 
@@ -225,3 +227,21 @@ def test_stripe_pieces_join_across_a_wider_reach_with_a_little_over_print():
     for key in ("coverage", "overlap", "spacing_mm"):
         assert wide[key] == strict[key]
 
+
+
+def test_one_sheet_serves_every_direction_of_a_plan():
+    """A plan draws stripes along three fields on one layout and keeps what no direction
+    changes (edges, weights, the energy's pattern, the split triangles) between them:
+    each set is the one a sheet of its own draws."""
+    xy, faces = _disk()
+    c = xy[faces].mean(axis=1)
+    sigma = np.full(len(faces), 0.1)
+    sheet = Sheet(xy, faces)
+    for name in ("two_half", "turn", "circles"):
+        d = _field(name, c)
+        shared = stripe_toolpaths(xy, faces, d, sigma, WIDTH, sheet=sheet)
+        own = stripe_toolpaths(xy, faces, d, sigma, WIDTH)
+        assert len(shared.traces) == len(own.traces)
+        assert all(np.array_equal(a, b) for a, b in zip(shared.traces, own.traces))
+    A, _ = stripes.stripe_matrix(sheet, stripes.vertex_line_field(sheet, d), WIDTH)
+    assert abs(A - A.T).max() < 1e-12

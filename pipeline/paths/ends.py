@@ -30,7 +30,8 @@ def retract_ends(chains, pw, reach=REACH, longest=LONGEST):
     shorter path's is cut, and a chain cut back to nothing is left out. Closed chains
     are kept whole.
 
-    chains : list of ((k, 2) points mm, (k - 1,) sigma, closed). Returns the same."""
+    chains : list of ((k, 2) points mm, (k - 1, ...) per segment (sigma, or sigma and
+    more columns), closed). Returns the same."""
     chains = list(chains)
     if len(chains) < 2:
         return chains
@@ -92,7 +93,7 @@ def _arc(points, label):
 
 
 def _cut(p, at, sg, start, stop, first, last):
-    """The part of polyline ``p`` (arc length ``at`` at its points, segment sigma
+    """The part of polyline ``p`` (arc length ``at`` at its points, per segment values
     ``sg``) from arc length ``start`` (point ``first``) to ``stop`` (point ``last``).
 
     The arc lengths come from other points along the same line, so ``p``'s own ends

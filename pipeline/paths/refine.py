@@ -14,8 +14,6 @@ patch shrinks to a sixteenth.
 
 import numpy as np
 
-from pipeline.geometry import unique_edges
-
 # Jacobi sweeps of the stripe energy on the split triangles: on the real tiles 10 gave
 # the coverage and overlap of a full solve there (30 and 100 no better).
 RELAX_SWEEPS = 10
@@ -25,22 +23,31 @@ FORK_SPLITS = 2
 
 def split(xy, faces, phase, X, width_mm, red):
     """Split the triangles ``red`` ((m,) bool) in four, and in two those of their
-    neighbours that share one split side (three-way splits would need more, so a
-    neighbour with two split sides is split in four too).
+    neighbours that share one split side (:func:`split_mesh`).
 
     Each new vertex, the midpoint of a side from ``a`` to ``b``, takes the line field
     ``X[a] + X[b]`` (turned to agree) and the phase of ``a`` plus half the side's step,
     so the paths through a triangle split in two run where they did.
 
     Returns (xy, faces, phase, X, parent: (m2,) the input triangle of each)."""
-    from pipeline.paths.stripes import _wrap
+    xy2, faces2, parent, sides = split_mesh(xy, faces, red)
+    phase2, X2 = carry(xy, phase, X, sides, width_mm)
+    return xy2, faces2, phase2, X2, parent
 
-    n = len(xy)
-    E = unique_edges(faces)
-    key = E[:, 0] * n + E[:, 1]
-    fe = np.stack([np.searchsorted(key, np.minimum(faces[:, k], faces[:, (k + 1) % 3]) * n
-                                   + np.maximum(faces[:, k], faces[:, (k + 1) % 3]))
-                   for k in range(3)], axis=1)
+
+def split_mesh(xy, faces, red, edges=None, face_edges=None):
+    """The triangles ``red`` ((m,) bool) split in four at their sides' midpoints, and in
+    two those of their neighbours that share one split side (three-way splits would need
+    more, so a neighbour with two split sides is split in four too). ``edges`` and
+    ``face_edges``: those of :class:`pipeline.paths.sheet.Sheet`, if known.
+
+    Returns (xy (n2, 2), faces (m2, 3), parent: (m2,) the input triangle of each, sides:
+    (n2 - n, 2) the two ends of the side each new vertex halves)."""
+    if edges is None:
+        from pipeline.paths.sheet import Sheet
+        sheet = Sheet(xy, faces)
+        edges, face_edges = sheet.edges, sheet.face_edges
+    n, E, fe = len(xy), edges, face_edges
     red = np.asarray(red, bool).copy()
     while True:
         marked = np.zeros(len(E), bool)
@@ -53,16 +60,8 @@ def split(xy, faces, phase, X, width_mm, red):
     me = np.flatnonzero(marked)
     mid = np.full(len(E), -1)
     mid[me] = n + np.arange(len(me))
-    a, b = E[me, 0], E[me, 1]
-    s = np.where(np.einsum("ec,ec->e", X[a], X[b]) < 0, -1.0, 1.0)
-    om = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[b] - xy[a],
-                                          0.5 * (X[a] + s[:, None] * X[b]))
-    step = om + _wrap(s * phase[b] - phase[a] - om)
-    Xm = X[a] + s[:, None] * X[b]
-    Xm /= np.maximum(np.linalg.norm(Xm, axis=1), 1e-12)[:, None]
-    xy2 = np.vstack([xy, 0.5 * (xy[a] + xy[b])])
-    phase2 = np.concatenate([phase, _wrap(phase[a] + step / 2)])
-    X2 = np.vstack([X, Xm])
+    sides = E[me]
+    xy2 = np.vstack([xy, 0.5 * (xy[sides[:, 0]] + xy[sides[:, 1]])])
     r = np.flatnonzero(red)
     A, B, C = faces[r].T
     ab, bc, ca = mid[fe[r, 0]], mid[fe[r, 1]], mid[fe[r, 2]]
@@ -77,20 +76,36 @@ def split(xy, faces, phase, X, width_mm, red):
     keep = np.flatnonzero(count == 0)
     out.append(faces[keep])
     parent.append(keep)
-    return xy2, np.concatenate(out), phase2, X2, np.concatenate(parent)
+    return xy2, np.concatenate(out), np.concatenate(parent), sides
 
 
-def relax(xy, faces, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS):
+def carry(xy, phase, X, sides, width_mm):
+    """``phase`` and ``X`` ((n,), (n, 2)) with values appended for the midpoints of
+    ``sides`` ((k, 2) vertex ids, :func:`split_mesh`): ((n + k,), (n + k, 2))."""
+    from pipeline.paths.stripes import _wrap
+
+    a, b = sides[:, 0], sides[:, 1]
+    s = np.where(np.einsum("ec,ec->e", X[a], X[b]) < 0, -1.0, 1.0)
+    om = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[b] - xy[a],
+                                          0.5 * (X[a] + s[:, None] * X[b]))
+    step = om + _wrap(s * phase[b] - phase[a] - om)
+    Xm = X[a] + s[:, None] * X[b]
+    Xm /= np.maximum(np.linalg.norm(Xm, axis=1), 1e-12)[:, None]
+    return np.concatenate([phase, _wrap(phase[a] + step / 2)]), np.vstack([X, Xm])
+
+
+def relax(sheet, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS):
     """``sweeps`` Jacobi sweeps of the stripe energy of :func:`pipeline.paths.stripes.
-    stripe_phase` from ``phase`` (given along ``X``), on the triangles ``faces`` with
-    the line field ``normal`` per triangle. Returns (phase, X) as ``stripe_phase``."""
+    stripe_phase` from ``phase`` (given along ``X``), on the triangles of ``sheet``
+    (:class:`pipeline.paths.sheet.Sheet`) with the line field ``normal`` per triangle.
+    Returns (phase, X) as ``stripe_phase``."""
     from pipeline.paths.stripes import stripe_matrix, vertex_line_field
 
-    Xn = vertex_line_field(xy, faces, normal)
+    Xn = vertex_line_field(sheet, normal)
     # A vertex whose new line field points the other way sees the conjugate value.
     phase = np.where(np.einsum("nc,nc->n", Xn, X) < 0, -phase, phase)
-    A, diag = stripe_matrix(xy, faces, Xn, width_mm)
-    v = np.empty(2 * len(xy))
+    A, diag = stripe_matrix(sheet, Xn, width_mm)
+    v = np.empty(2 * len(sheet.xy))
     v[0::2], v[1::2] = np.cos(phase), np.sin(phase)
     d = np.repeat(diag, 2)
     for _ in range(sweeps):
@@ -98,17 +113,20 @@ def relax(xy, faces, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS):
     return np.arctan2(v[1::2], v[0::2]), Xn
 
 
-def refine_phase(xy, faces, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS,
+def refine_phase(sheet, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS,
                  fork_splits=FORK_SPLITS):
-    """The phase on every triangle split in four and relaxed, then the triangles it
-    winds around split ``fork_splits`` times more.
+    """The phase on every triangle of ``sheet`` (:class:`pipeline.paths.sheet.Sheet`)
+    split in four and relaxed, then the triangles it winds around split
+    ``fork_splits`` times more.
 
     Returns (xy, faces, phase, X, parent: (m2,) the input triangle of each,
     u and pathless of :func:`pipeline.paths.stripes.corner_phases` on these triangles)."""
     from pipeline.paths.stripes import corner_phases
 
-    xy, sub, phase, X, parent = split(xy, faces, phase, X, width_mm, np.ones(len(faces), bool))
-    phase, X = relax(xy, sub, normal[parent], phase, X, width_mm, sweeps)
+    fine, parent, sides = sheet.quartered
+    phase, X = carry(sheet.xy, phase, X, sides, width_mm)
+    phase, X = relax(fine, normal[parent], phase, X, width_mm, sweeps)
+    xy, sub = fine.xy, fine.faces
     u, pathless = corner_phases(xy, sub, phase, X, width_mm)
     for _ in range(fork_splits):
         if not pathless.any():

@@ -14,12 +14,15 @@ a direction that turns as fast as on real terrain; the phase is drawn on finer o
 forks are cut back (:mod:`pipeline.paths.ends`).
 """
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from pipeline.geometry import hat_gradients, quarter_turn, signed_areas_2d, unique_edges
+from pipeline.geometry import hat_gradients, quarter_turn, signed_areas_2d
 from pipeline.paths.ends import REACH
+from pipeline.paths.sheet import Sheet
 
 
 # Stripe pieces whose ends lie up to this many path widths apart are joined into one
@@ -37,31 +40,41 @@ WIDTH_TOL = 0.01
 FORK, BRANCH = 1, 2
 
 
-def vertex_line_field(xy, faces, normal):
-    """Per-vertex unit line field from per-face ``normal`` ((m, 2) unit): area-weighted
-    mean of the doubled angles. Returns (n, 2)."""
-    area = np.abs(signed_areas_2d(np.asarray(xy, dtype=float), faces))
-    z = area * np.exp(2j * np.arctan2(normal[:, 1], normal[:, 0]))
-    acc = np.zeros(len(xy), complex)
-    np.add.at(acc, faces.ravel(), np.repeat(z, 3))
+class Stripes(NamedTuple):
+    """The paths :func:`plan_stripes` draws, before they are cut back and joined."""
+
+    chains: list      # of ((k, 2) points mm, (k - 1,) sigma, closed)
+    pathless: object  # (m,) int8: why each triangle holds no path or part of one (as
+    #                   :func:`corner_phases`; a branch before a fork)
+    bare_mm2: float   # the area of the finer triangles that hold no path
+    faces: list       # of (k - 1,) int: the layout's triangle each segment lies in
+
+
+def vertex_line_field(sheet, normal):
+    """Per-vertex unit line field from per-face ``normal`` ((m, 2) unit) on ``sheet``
+    (:class:`pipeline.paths.sheet.Sheet`): area-weighted mean of the doubled angles.
+    Returns (n, 2)."""
+    z = sheet.face_area * np.exp(2j * np.arctan2(normal[:, 1], normal[:, 0]))
+    acc = np.zeros(len(sheet.xy), complex)
+    np.add.at(acc, sheet.faces.ravel(), np.repeat(z, 3))
     ang = np.angle(acc) / 2
     return np.stack([np.cos(ang), np.sin(ang)], axis=1)
 
 
-def stripe_phase(xy, faces, normal, width_mm):
-    """Phase per vertex ((n,) rad) whose gradient is ``2 pi / width`` along the line
-    field ``normal`` (per face, unit; the paths run across it), and the vertex field
-    ``X`` ((n, 2)) the phase is measured along."""
-    xy = np.asarray(xy, dtype=float)
-    X = vertex_line_field(xy, faces, normal)
-    A, diag = stripe_matrix(xy, faces, X, width_mm)
-    mass = np.repeat(_vertex_areas(xy, faces), 2)
+def stripe_phase(sheet, normal, width_mm):
+    """Phase per vertex of ``sheet`` (:class:`pipeline.paths.sheet.Sheet`; (n,) rad)
+    whose gradient is ``2 pi / width`` along the line field ``normal`` (per face, unit;
+    the paths run across it), and the vertex field ``X`` ((n, 2)) the phase is measured
+    along."""
+    X = vertex_line_field(sheet, normal)
+    A, diag = stripe_matrix(sheet, X, width_mm)
+    mass = np.repeat(sheet.vertex_area, 2)
     vec = smallest_eigenvector(A, mass, -1e-3 * float(diag.mean()) / float(mass.mean()))
     psi = vec[0::2] + 1j * vec[1::2]
     return np.angle(psi), X
 
 
-def stripe_phase_at_width(xy, faces, normal, width_mm, tol=WIDTH_TOL):
+def stripe_phase_at_width(sheet, normal, width_mm, tol=WIDTH_TOL):
     """:func:`stripe_phase` whose paths lie ``width_mm`` apart as drawn, not only as asked.
 
     Where the field spreads and the stripes fork often (a saddle's paths fan out from
@@ -70,13 +83,13 @@ def stripe_phase_at_width(xy, faces, normal, width_mm, tol=WIDTH_TOL):
     holds and 3.3 % of the sheet was printed twice. The mean spacing the phase draws is
     measured, and where it is off by more than ``tol`` the phase is solved once more at
     the width that corrects it. Returns (phase, X, the width solved at)."""
-    phase, X = stripe_phase(xy, faces, normal, width_mm)
-    u, bare = corner_phases(xy, faces, phase, X, width_mm)
-    drawn = drawn_spacing(xy, faces, u, bare == 0)
+    phase, X = stripe_phase(sheet, normal, width_mm)
+    u, bare = corner_phases(sheet.xy, sheet.faces, phase, X, width_mm)
+    drawn = drawn_spacing(sheet.xy, sheet.faces, u, bare == 0)
     if drawn is None or abs(drawn / width_mm - 1.0) <= tol:
         return phase, X, width_mm
     asked = width_mm * width_mm / drawn
-    phase, X = stripe_phase(xy, faces, normal, asked)
+    phase, X = stripe_phase(sheet, normal, asked)
     return phase, X, asked
 
 
@@ -93,35 +106,21 @@ def drawn_spacing(xy, faces, u, ok):
     return float(area.sum() / (area * grad).sum())
 
 
-def stripe_matrix(xy, faces, X, width_mm):
-    """The stripe energy of a phase along the vertex field ``X`` ((n, 2) unit): the
-    sparse (2n, 2n) matrix over the real and imaginary parts of the vertex values, and
-    its diagonal per vertex ((n,))."""
-    n = len(xy)
-    E = unique_edges(faces)
-    i, j = E[:, 0], E[:, 1]
+def stripe_matrix(sheet, X, width_mm):
+    """The stripe energy of a phase along the vertex field ``X`` ((n, 2) unit) on
+    ``sheet`` (:class:`pipeline.paths.sheet.Sheet`): the sparse (2n, 2n) matrix over the
+    real and imaginary parts of the vertex values, and its diagonal per vertex ((n,))."""
+    xy, (i, j) = sheet.xy, sheet.edges.T
     s = np.where(np.einsum("ec,ec->e", X[i], X[j]) < 0, -1.0, 1.0)
     omega = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[j] - xy[i],
                                              0.5 * (X[i] + s[:, None] * X[j]))
-    w = _edge_weights(xy, faces, E)
-    c, sn = np.cos(omega), np.sin(omega)
+    w = sheet.weights
+    c, sn = w * np.cos(omega), w * np.sin(omega)
     # Transport of vertex i's value to j: rotation by omega, then conjugation if the
-    # line field turns over along the edge. T = [[c, -sn], [s sn, s c]].
-    T = np.stack([np.stack([c, -sn], 1), np.stack([s * sn, s * c], 1)], 1)   # (e, 2, 2)
-    rows, cols, vals = [], [], []
-    for a in range(2):
-        for b in range(2):
-            # A_ji = -w T, A_ij = -w T^T.
-            rows += [2 * j + a, 2 * i + b]
-            cols += [2 * i + b, 2 * j + a]
-            vals += [-w * T[:, a, b], -w * T[:, a, b]]
-    diag = np.bincount(np.concatenate([i, j]), np.concatenate([w, w]), n)
-    rows.append(np.arange(2 * n))
-    cols.append(np.arange(2 * n))
-    vals.append(np.repeat(diag, 2))
-    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(2 * n, 2 * n))
-    return A, diag
+    # line field turns over along the edge, T = [[c, -sn], [s sn, s c]]; A_ji = -w T.
+    block = -np.stack([c, -sn, s * sn, s * c])
+    diag = np.bincount(np.concatenate([i, j]), np.concatenate([w, w]), len(xy))
+    return sheet.matrix(block, diag), diag
 
 
 def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
@@ -301,22 +300,22 @@ def _ordered(start, last, rank, member, closed):
     return [(steps, closed) for steps in np.split(nodes, cuts)]
 
 
-def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
+def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True, sheet=None):
     """Paths along ``direction`` ((m, 2) unit per face), a path width apart; with
     ``refine`` the phase is carried to finer triangles (:mod:`pipeline.paths.refine`),
-    which leaves smaller bare patches where the stripes fork.
+    which leaves smaller bare patches where the stripes fork. ``sheet``: the
+    :class:`pipeline.paths.sheet.Sheet` of ``xy`` and ``faces`` where the caller keeps
+    one for several directions.
 
-    Returns (chains: list of ((k, 2) points mm, (k - 1,) sigma, closed), why each
-    triangle holds no path or part of one: (m,) int8 of :func:`corner_phases` (a
-    branch before a fork), the bare area (mm2))."""
+    Returns a :class:`Stripes`."""
     d = np.asarray(direction, dtype=float)
-    xy = np.asarray(xy, dtype=float)
+    sheet = Sheet(xy, faces) if sheet is None else sheet
+    xy = sheet.xy
     normal = quarter_turn(d)
-    phase, X, width_mm = stripe_phase_at_width(xy, faces, normal, width_mm, WIDTH_TOL)
+    phase, X, width_mm = stripe_phase_at_width(sheet, normal, width_mm, WIDTH_TOL)
     if refine:
         from pipeline.paths.refine import refine_phase
-        xy, sub, phase, X, parent, u, bare = refine_phase(xy, faces, normal, phase, X,
-                                                         width_mm)
+        xy, sub, phase, X, parent, u, bare = refine_phase(sheet, normal, phase, X, width_mm)
     else:
         sub, parent = faces, np.arange(len(faces))
         u, bare = corner_phases(xy, faces, phase, X, width_mm)
@@ -325,35 +324,29 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True):
     bare_mm2 = float(np.abs(signed_areas_2d(xy, sub[bare > 0])).sum())
     pts, keys, face = stripe_segments(xy, sub, u, bare == 0)
     seg_sigma = np.asarray(sigma, dtype=float)[parent[face]]
-    chains = []
+    chains, faces = [], []
     for steps, closed in chain(keys):
         e = np.asarray(steps)
         seg, entry = e // 2, e % 2
         # Each segment's entry point, then where the last one is left.
         p = pts[np.append(seg, seg[-1]), np.append(entry, 1 - entry[-1])]
         chains.append((p[:-1] if closed else p, seg_sigma[seg], closed))
-    return chains, pathless, bare_mm2
+        faces.append(parent[face[seg]])
+    return Stripes(chains, pathless, bare_mm2, faces)
 
 
 
-def direction_angles(points, xy, faces, *directions):
-    """Angle (degrees) between each path segment and each of ``directions`` ((m, 2),
-    unit, or 0 where a triangle has none) in the triangle its midpoint lies in, and the
-    segment lengths, 0 where there is no direction to compare with: one pair of (s,)
-    arrays per direction field (the triangles are looked up once for all)."""
-    from scipy.spatial import cKDTree
-    seg = [np.asarray(p) for p in points]
-    a = np.concatenate([p[:-1] for p in seg])
-    b = np.concatenate([p[1:] for p in seg])
-    mid = (a + b) / 2
-    cen = np.asarray(xy)[faces].mean(axis=1)
-    _, f = cKDTree(cen).query(mid)
-    t = b - a
-    length = np.linalg.norm(t, axis=1)
+def direction_angles(steps, face, *directions):
+    """Angle (degrees) between each path segment (``steps`` (s, 2) mm, from its start to
+    its end) and each of ``directions`` ((m, 2), unit, or 0 where a triangle has none)
+    in the triangle ``face`` ((s,)) it lies in, and the segment lengths, 0 where there
+    is no direction to compare with: one pair of (s,) arrays per direction field."""
+    length = np.hypot(steps[:, 0], steps[:, 1])
     out = []
     for direction in directions:
-        cos = np.abs(np.einsum("sc,sc->s", t, direction[f])) / np.maximum(length, 1e-12)
-        known = np.linalg.norm(direction[f], axis=1) > 0.5
+        d = direction[face]
+        cos = np.abs(np.einsum("sc,sc->s", steps, d)) / np.maximum(length, 1e-12)
+        known = np.hypot(d[:, 0], d[:, 1]) > 0.5
         out.append((np.degrees(np.arccos(np.clip(cos, 0, 1))), length * known))
     return out
 
@@ -367,40 +360,21 @@ def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def _edge_weights(xy, faces, E):
-    """Cotangent weights, kept positive (obtuse corners would make the problem indefinite)."""
-    P = xy[faces]
-    w = np.zeros(len(E))
-    key = E[:, 0] * len(xy) + E[:, 1]
-    for k in range(3):
-        a, b, c = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]
-        u, v = P[:, k] - P[:, (k + 2) % 3], P[:, (k + 1) % 3] - P[:, (k + 2) % 3]
-        cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
-        cot = np.einsum("mc,mc->m", u, v) / np.maximum(cross, 1e-12)
-        q = np.minimum(a, b) * len(xy) + np.maximum(a, b)
-        np.add.at(w, np.searchsorted(key, q), 0.5 * cot)
-        del c
-    return np.maximum(w, 1e-3 * max(float(np.median(np.abs(w))), 1e-12))
-
-
-def _vertex_areas(xy, faces):
-    area = np.abs(signed_areas_2d(xy, faces))
-    return np.bincount(faces.ravel(), np.repeat(area / 3, 3), len(xy))
-
-
 def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                      merge_sigma=0.005, link_factor=1.6, join_factor=JOIN_FACTOR,
-                     over_factor=OVER_FACTOR, refine=True, retract=REACH, level=None):
+                     over_factor=OVER_FACTOR, refine=True, retract=REACH, level=None,
+                     sheet=None):
     """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
     ends lie up to ``join_factor`` path widths apart joined first where the hop runs over
-    other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), then chained into traces by short hops, as the
-    isoline method's paths are; each segment carries the shrink of the triangle it
-    crosses; the report adds ``direction_angle_deg``. With ``refine`` the phase is
-    carried to finer triangles (:func:`plan_stripes`); path ends that come within
-    ``retract`` path widths of another path are cut back
-    (:func:`pipeline.paths.ends.retract_ends`; 0: not cut). With ``level`` ((n,) the
-    height of each vertex) the report also says how far the paths turn away from the
-    isolines (``isoline_angle_deg``, as the isoline method's report does)."""
+    other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), then
+    chained into traces by short hops, as the isoline method's paths are; each segment
+    carries the shrink of the triangle it crosses; the report adds
+    ``direction_angle_deg``. With ``refine`` the phase is carried to finer triangles
+    (:func:`plan_stripes`); path ends that come within ``retract`` path widths of
+    another path are cut back (:func:`pipeline.paths.ends.retract_ends`; 0: not cut).
+    With ``level`` ((n,) the height of each vertex) the report also says how far the
+    paths turn away from the isolines (``isoline_angle_deg``, as the isoline method's
+    report does). ``sheet``: as :func:`plan_stripes`'."""
     import shapely
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
@@ -408,13 +382,18 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
     xy = np.asarray(xy, dtype=float)
-    chains, pathless, bare_mm2 = plan_stripes(xy, faces, direction, sigma, width_mm, refine)
+    drawn = plan_stripes(xy, faces, direction, sigma, width_mm, refine, sheet)
+    # Each segment's triangle rides along with its shrink, through the ends cut back.
+    chains = [(p, np.column_stack([sg, f]), closed)
+              for (p, sg, closed), f in zip(drawn.chains, drawn.faces)]
     if retract > 0:
         chains = retract_ends(chains, width_mm, retract)
     # A piece shorter than a path width is a blob, not a path: where stripes graze the
     # outline's triangles (the 175 mm dome's rim left 14 of 0.03-0.3 mm beside its one
     # trace) each would print a travel and a retraction for less than a bead's width.
     chains = [c for c in chains if c[2] or _length(c[0]) >= width_mm] or chains
+    face = np.concatenate([t[:, 1] for _, t, _ in chains]).astype(np.int64)
+    chains = [(p, t[:, 0], closed) for p, t, closed in chains]
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
     outline = _outline_polygon(xy, boundary_loop(faces))
     footprint = outline.buffer(0.25 * width_mm)
@@ -431,13 +410,13 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     if level is not None:
         from pipeline.layout.curvature import isoline_directions
         fields["isoline_angle_deg"] = isoline_directions(xy, faces, level, level=(0.0, 0.0))
-    for key, (ang, length) in zip(fields, direction_angles([p for p, _ in raw], xy, faces,
-                                                           *fields.values())):
+    steps = np.concatenate([np.diff(p, axis=0) for p, _ in raw])
+    for key, (ang, length) in zip(fields, direction_angles(steps, face, *fields.values())):
         info[key] = dict(zip(("p50", "p95"), _weighted_percentiles(ang, length, [50, 95])))
     # Which cure a bare patch needs: forks come from a phase the triangles cannot
     # resolve (or a field with curl), branches from the field's own singular points.
-    info["pathless_triangles"] = int((pathless > 0).sum())
-    info["fork_triangles"] = int((pathless == FORK).sum())
-    info["branch_triangles"] = int((pathless == BRANCH).sum())
-    info["pathless_mm2"] = bare_mm2
+    info["pathless_triangles"] = int((drawn.pathless > 0).sum())
+    info["fork_triangles"] = int((drawn.pathless == FORK).sum())
+    info["branch_triangles"] = int((drawn.pathless == BRANCH).sum())
+    info["pathless_mm2"] = drawn.bare_mm2
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)

@@ -1,0 +1,99 @@
+"""The triangles a stripe phase is drawn on, with what no print direction changes.
+
+A plan draws stripes along three direction fields on one layout (the lower layers',
+the upper layers', the layers across); the edges, their cotangent weights, the
+vertices' areas, the sparse pattern of the stripe energy and the triangles split in
+four for the finer phase (:mod:`pipeline.paths.refine`) are the same for all three, so
+they are worked out once per sheet.
+"""
+
+from functools import cached_property
+
+import numpy as np
+import scipy.sparse as sp
+
+from pipeline.geometry import signed_areas_2d, unique_edges
+
+
+class Sheet:
+    """Triangles in the plane: ``xy`` (n, 2) mm, ``faces`` (m, 3) int."""
+
+    def __init__(self, xy, faces):
+        self.xy = np.asarray(xy, dtype=float)
+        self.faces = np.asarray(faces)
+
+    @cached_property
+    def edges(self):
+        """(e, 2) int: every side once, the smaller vertex first, rows sorted."""
+        return unique_edges(self.faces)
+
+    @cached_property
+    def face_area(self):
+        """(m,) mm2."""
+        return np.abs(signed_areas_2d(self.xy, self.faces))
+
+    @cached_property
+    def vertex_area(self):
+        """(n,) mm2: a third of each triangle round the vertex."""
+        return np.bincount(self.faces.ravel(), np.repeat(self.face_area / 3, 3), len(self.xy))
+
+    @cached_property
+    def face_edges(self):
+        """(m, 3) int: the edge (row of :attr:`edges`) of each triangle's side k, from
+        corner k to corner k + 1."""
+        n, f = len(self.xy), self.faces
+        key = self.edges[:, 0] * n + self.edges[:, 1]
+        return np.stack([np.searchsorted(key, np.minimum(f[:, k], f[:, (k + 1) % 3]) * n
+                                         + np.maximum(f[:, k], f[:, (k + 1) % 3]))
+                         for k in range(3)], axis=1)
+
+    @cached_property
+    def weights(self):
+        """(e,) cotangent weights, kept positive (obtuse corners would make the stripe
+        problem indefinite)."""
+        P = self.xy[self.faces]
+        w = np.zeros(len(self.edges))
+        for k in range(3):
+            u, v = P[:, k] - P[:, (k + 2) % 3], P[:, (k + 1) % 3] - P[:, (k + 2) % 3]
+            cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+            cot = np.einsum("mc,mc->m", u, v) / np.maximum(cross, 1e-12)
+            np.add.at(w, self.face_edges[:, k], 0.5 * cot)
+        return np.maximum(w, 1e-3 * max(float(np.median(np.abs(w))), 1e-12))
+
+    @cached_property
+    def pattern(self):
+        """The stripe energy's sparse pattern over the vertices' real and imaginary
+        parts: (indices, indptr) of the (2n, 2n) CSR matrix, and which entry of
+        :meth:`matrix`'s values (four 2 x 2 blocks per edge, then the diagonal)
+        lands in each of its slots."""
+        n, (i, j) = len(self.xy), self.edges.T
+        rows, cols = [], []
+        for a in range(2):
+            for b in range(2):
+                rows += [2 * j + a, 2 * i + b]
+                cols += [2 * i + b, 2 * j + a]
+        rows.append(np.arange(2 * n))
+        cols.append(np.arange(2 * n))
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        # No entry repeats, so the slots hold a permutation of the entries.
+        M = sp.csr_matrix((np.arange(len(rows), dtype=float), (rows, cols)), shape=(2 * n,) * 2)
+        return M.indices, M.indptr, M.data.astype(np.int64)
+
+    def matrix(self, block, diag):
+        """The (2n, 2n) CSR matrix whose entries (2 j + a, 2 i + b) and (2 i + b, 2 j + a)
+        are ``block[2 a + b]`` ((4, e), per edge (i, j)) and whose diagonal is ``diag``
+        ((n,), the same for a vertex's two parts)."""
+        indices, indptr, slot = self.pattern
+        vals = np.concatenate([np.repeat(block[:, None, :], 2, axis=1).ravel(),
+                               np.repeat(diag, 2)])
+        return sp.csr_matrix((vals[slot], indices, indptr), shape=(2 * len(self.xy),) * 2)
+
+    @cached_property
+    def quartered(self):
+        """Every triangle split in four at its sides' midpoints: (the finer
+        :class:`Sheet`, (m4,) the triangle each came from, (k, 2) the side each new
+        vertex halves, new vertices numbered from n in this order)."""
+        from pipeline.paths.refine import split_mesh
+        xy, faces, parent, sides = split_mesh(self.xy, self.faces, np.ones(len(self.faces), bool),
+                                              self.edges, self.face_edges)
+        return Sheet(xy, faces), parent, sides
