@@ -35,22 +35,30 @@ def split(xy, faces, phase, X, width_mm, red):
     return xy2, faces2, phase2, X2, parent
 
 
-def split_mesh(xy, faces, red, edges=None, face_edges=None):
+def split_mesh(xy, faces, red):
     """The triangles ``red`` ((m,) bool) split in four at their sides' midpoints, and in
     two those of their neighbours that share one split side (three-way splits would need
-    more, so a neighbour with two split sides is split in four too). ``edges`` and
-    ``face_edges``: those of :class:`pipeline.paths.sheet.Sheet`, if known.
+    more, so a neighbour with two split sides is split in four too).
 
     Returns (xy (n2, 2), faces (m2, 3), parent: (m2,) the input triangle of each, sides:
-    (n2 - n, 2) the two ends of the side each new vertex halves)."""
-    if edges is None:
-        from pipeline.paths.sheet import Sheet
-        sheet = Sheet(xy, faces)
-        edges, face_edges = sheet.edges, sheet.face_edges
-    n, E, fe = len(xy), edges, face_edges
+    (n2 - n, 2) the two ends of the side each new vertex halves, in the order of
+    :func:`pipeline.geometry.unique_edges`)."""
+    n = len(xy)
     red = np.asarray(red, bool).copy()
+    if not red.any():
+        return xy, faces, np.arange(len(faces)), np.zeros((0, 2), np.int64)
+    f = np.asarray(faces, np.int64)
+    nxt = np.roll(f, -1, axis=1)
+    # Each triangle's side k (corners k, k + 1) by a key both its triangles share, and
+    # each side's number among the distinct keys in ascending order.
+    key = (np.minimum(f, nxt) * n + np.maximum(f, nxt)).ravel()
+    order = np.argsort(key, kind="stable")
+    first = np.r_[True, key[order[1:]] != key[order[:-1]]]
+    fe = np.empty(len(key), np.int64)
+    fe[order] = np.cumsum(first) - 1
+    fe, n_sides = fe.reshape(-1, 3), int(first.sum())
     while True:
-        marked = np.zeros(len(E), bool)
+        marked = np.zeros(n_sides, bool)
         marked[fe[red].ravel()] = True
         count = marked[fe].sum(axis=1)
         more = ~red & (count >= 2)
@@ -58,19 +66,21 @@ def split_mesh(xy, faces, red, edges=None, face_edges=None):
             break
         red |= more
     me = np.flatnonzero(marked)
-    mid = np.full(len(E), -1)
+    mid = np.full(len(marked), -1)
     mid[me] = n + np.arange(len(me))
-    sides = E[me]
+    side_key = key[order[first]][me]
+    sides = np.stack([side_key // n, side_key % n], axis=1)
+    mid, marked = mid[fe], marked[fe]
     xy2 = np.vstack([xy, 0.5 * (xy[sides[:, 0]] + xy[sides[:, 1]])])
     r = np.flatnonzero(red)
     A, B, C = faces[r].T
-    ab, bc, ca = mid[fe[r, 0]], mid[fe[r, 1]], mid[fe[r, 2]]
+    ab, bc, ca = mid[r, 0], mid[r, 1], mid[r, 2]
     out = [np.stack(t, axis=1) for t in ((A, ab, ca), (ab, B, bc), (ca, bc, C), (ab, bc, ca))]
     parent = [r] * 4
     g = np.flatnonzero(~red & (count == 1))
-    k = np.argmax(marked[fe[g]], axis=1)               # the split side: corners k, k + 1
+    k = np.argmax(marked[g], axis=1)                   # the split side: corners k, k + 1
     i0, i1, i2 = faces[g, k], faces[g, (k + 1) % 3], faces[g, (k + 2) % 3]
-    m = mid[fe[g, k]]
+    m = mid[g, k]
     out += [np.stack([i0, m, i2], axis=1), np.stack([m, i1, i2], axis=1)]
     parent += [g, g]
     keep = np.flatnonzero(count == 0)

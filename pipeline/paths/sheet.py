@@ -94,6 +94,5 @@ class Sheet:
         :class:`Sheet`, (m4,) the triangle each came from, (k, 2) the side each new
         vertex halves, new vertices numbered from n in this order)."""
         from pipeline.paths.refine import split_mesh
-        xy, faces, parent, sides = split_mesh(self.xy, self.faces, np.ones(len(self.faces), bool),
-                                              self.edges, self.face_edges)
+        xy, faces, parent, sides = split_mesh(self.xy, self.faces, np.ones(len(self.faces), bool))
         return Sheet(xy, faces), parent, sides
