@@ -100,6 +100,33 @@ def test_a_hop_over_others_beyond_the_limit_is_not_measured_further(monkeypatch)
     assert sum(asked) < n
 
 
+def test_the_over_print_is_that_of_every_sample_asked_though_fewer_are(monkeypatch):
+    """Neighbours of a sample found near another path are counted without being asked;
+    the figure is still that of asking every sample: within half a width of another
+    path's sample, or with sixteen samples within it."""
+    from pipeline.paths import links
+    a, b, _, samples, label, tree = _random_hops(6)
+    own_a, own_b = label[tree.query(a)[1]], label[tree.query(b)[1]]
+    asked = []
+    near = links._near_a_third
+
+    def counted(q, *rest):
+        asked.append(len(q))
+        return near(q, *rest)
+    monkeypatch.setattr(links, "_near_a_third", counted)
+    got = links.over_others(a, b, own_a, own_b, samples, label, tree, 0.5)
+    want, total = [], 0
+    for p, q, oa, ob in zip(a, b, own_a, own_b):
+        n = max(int(np.ceil(np.linalg.norm(q - p) / 0.125)), 1)
+        pts = p + (q - p) * ((np.arange(n) + 0.5) / n)[:, None]
+        hits = tree.query_ball_point(pts, 0.25)
+        bad = [len(k) >= 16 or any(label[j] not in (oa, ob) for j in k) for k in hits]
+        want.append(sum(bad) * np.linalg.norm(q - p) / n)
+        total += n
+    assert np.allclose(got, want) and np.sum(want) > 0
+    assert sum(asked) < 0.8 * total
+
+
 def test_a_hop_over_another_path_within_the_budget_is_taken():
     # Ends (4.4, 0) and (4.4, 2 PW) face each other across a closed path (no ends).
     ring = np.array([[3.0, PW], [10.0, PW], [10.0, 1.1 * PW], [3.0, 1.1 * PW]])

@@ -57,37 +57,64 @@ def over_others(a, b, own_a, own_b, samples, label, tree, pw, limit=np.inf):
     step = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
     t = (step + 0.5) / n[hop]
     q = a[hop] + (b - a)[hop] * t[:, None]
-    count, seg = np.zeros(h, np.int64), length / n
-    # Most candidates cross other paths for far longer than the limit: every other
-    # sample first rules most of them out, and only the rest are asked the other half.
-    for part in (step % 2 == 0, step % 2 == 1):
-        ask = part & (count * seg <= limit)[hop]
-        bad = _near_a_third(q[ask], own_a[hop[ask]], own_b[hop[ask]], label, tree,
-                            0.5 * pw, min(_FIRST, len(samples)),
-                            min(_NEIGHBOURS, len(samples)))
-        count += np.bincount(hop[ask][bad], minlength=h)
+    seg = length / n
+    bad = np.zeros(len(q), bool)
+    asked = np.zeros(len(q), bool)
+    count = np.zeros(h, np.int64)
+    # Most candidates cross other paths for far longer than the limit: every fourth
+    # sample first, then every other, rules most of them out, and only the rest are
+    # asked the remaining samples. A sample found within reach of another path's sample
+    # at distance delta makes its neighbours closer than reach - delta bad too, unasked.
+    for part in (step % 4 == 0, step % 2 == 0, np.ones(len(q), bool)):
+        ask = np.flatnonzero(part & ~asked & ~bad & (count * seg <= limit)[hop])
+        found, delta = _near_a_third(q[ask], own_a[hop[ask]], own_b[hop[ask]], label, tree,
+                                     0.5 * pw, min(_FIRST, len(samples)),
+                                     min(_NEIGHBOURS, len(samples)))
+        asked[ask] = True
+        bad[ask[found]] = True
+        _spread(bad, ask[found], 0.5 * pw - delta[found], seg[hop[ask[found]]], step, n, hop)
+        count = np.bincount(hop[bad], minlength=h)
     return count * seg
+
+
+def _spread(bad, at, room, seg, step, n, hop):
+    """Mark the samples of a hop that lie closer than ``room`` (mm) to the bad samples
+    ``at`` (each within reach of another path's sample, by ``room`` less than reach):
+    the same path's sample lies within reach of them."""
+    for j in range(1, int(np.ceil((room / np.maximum(seg, 1e-12)).max(initial=0))) + 1):
+        near = j * seg < room - 1e-9
+        if not near.any():
+            break
+        for sign in (-1, 1):
+            k = at[near] + sign * j
+            inside = (step[at[near]] + sign * j >= 0) & (step[at[near]] + sign * j
+                                                          < n[hop[at[near]]])
+            bad[k[inside]] = True
 
 
 def _near_a_third(q, own_a, own_b, label, tree, reach, k, k_max):
     """Which points ``q`` ((p, 2) mm) lie within ``reach`` of a path other than their
     ``own_a`` and ``own_b`` ((p,)), or have ``k_max`` neighbours within it all their own
-    (a third path could lie beyond them): (p,) bool. The ``k`` nearest are asked first
-    and only points whose ``k`` all lie within reach and are their own ask ``k_max``: the
-    nearest other path among ``k`` is the nearest among ``k_max``, and fewer than ``k``
-    within reach are all there are (the answer is that of asking ``k_max`` of all)."""
+    (a third path could lie beyond them): (p,) bool, and the distance to the nearest
+    other path's sample among those asked ((p,) mm, inf where none). The ``k`` nearest
+    are asked first and only points whose ``k`` all lie within reach and are their own
+    ask ``k_max``: the nearest other path among ``k`` is the nearest among ``k_max``,
+    and fewer than ``k`` within reach are all there are (the answer is that of asking
+    ``k_max`` of all)."""
     d, i = tree.query(q, k=k, distance_upper_bound=reach)
     d, i = d.reshape(len(q), k), i.reshape(len(q), k)
     near = np.isfinite(d)
     lab = label[np.minimum(i, len(label) - 1)]
-    bad = (near & (lab != own_a[:, None]) & (lab != own_b[:, None])).any(axis=1)
+    other = near & (lab != own_a[:, None]) & (lab != own_b[:, None])
+    bad = other.any(axis=1)
+    delta = np.where(bad, d[np.arange(len(q)), np.argmax(other, axis=1)], np.inf)
     full = near[:, -1] & ~bad
     if k < k_max and full.any():
-        bad[full] = _near_a_third(q[full], own_a[full], own_b[full], label, tree, reach,
-                                  k_max, k_max)
+        bad[full], delta[full] = _near_a_third(q[full], own_a[full], own_b[full], label, tree,
+                                               reach, k_max, k_max)
     else:
         bad |= full
-    return bad
+    return bad, delta
 
 
 def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
