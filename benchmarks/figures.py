@@ -46,6 +46,7 @@ PLAN_COLUMNS = [
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
     ("overlap", lambda n, r: _pct(r.get("overlap"))),
+    ("hops over paths", lambda n, r: _pct(r.get("hop_overprint_share"))),
     ("direction p95 deg", lambda n, r: _f((r.get("direction_angle_deg") or {}).get("p95"), 1)),
     ("load to simulation s", lambda n, r: _median(r, "load_to_simulation_s")),
     ("all stages s", lambda n, r: _median(r, "all_stages_s")),
@@ -139,8 +140,11 @@ def render(groups):
                 "(turned apart by the twist), `+ c across` where two layers (the second and second "
                 "last) print paths across the others' (the curvature across them); `trace "
                 "ends inside`: the lower layers' trace ends more than a path width from the "
-                "outline, where the stripes fork and no hop can join them (the traces are at "
-                "least half as many). "
+                "outline, where the stripes fork and no hop within its budget joins them (the "
+                "traces are at least half as many); `hops over paths`: the length of the lower "
+                "layers' hops that prints over other paths, or back over the two it joins "
+                "(`toolpath.hop_over_widths` a hop at most), as a share of their path length: "
+                "plastic printed twice that `overlap`, taken over the paths alone, does not see. "
                 "`isoline`: the paper's layout as given, its sheet resampled onto the 1 mm grid "
                 "(`flatten.simulation: shell`), started from a bump. Rows `at 175 mm`: the real "
                 "tile again at the size the time targets name, with the default method; rows `lowered "

@@ -129,6 +129,11 @@ print(json.dumps({
     "simulated_vertices": r["simulation"]["sheet_vertices"],
     "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
     "ends_inside": r["toolpath"].get("ends_inside"),
+    # The lower layers' hops printing over paths (third ones, or back over their own),
+    # as a share of the path length: plastic printed twice that overlap does not see.
+    "hop_overprint_share": (None if "hop_overprint_mm" not in r["toolpath"] else round(
+        (r["toolpath"]["hop_overprint_mm"] + r["toolpath"].get("hop_overprint_own_mm", 0.0))
+        / max(r["toolpath"]["length_mm"], 1e-9), 4)),
     "upper_traces": g.get("upper_traces"),
     "twist_kept": ((r.get("curvature") or {}).get("twist") or {}).get("kept"),
     "across_kept": ((r.get("curvature") or {}).get("across") or {}).get("kept"),

@@ -52,10 +52,22 @@ def test_hop_overprint_counts_only_the_length_over_a_third_path():
     samples, label, tree = path_samples(paths, PW)
     beside = hop_figures(np.array([[[10, 0], [10, PW]]]), samples, label, tree, PW)
     across = hop_figures(np.array([[[10, 0], [10, 2 * PW]]]), samples, label, tree, PW)
-    assert beside == {"hop_mm": PW, "hop_overprint_mm": 0.0}
+    assert beside == {"hop_mm": PW, "hop_overprint_mm": 0.0, "hop_overprint_own_mm": 0.0}
     # Over the middle path for the width of its bead.
     assert across["hop_mm"] == 2 * PW
     assert abs(across["hop_overprint_mm"] - PW) <= PW / 4
+    assert across["hop_overprint_own_mm"] == 0.0
+
+
+def test_a_hop_back_along_its_own_path_prints_it_twice():
+    """Leaving a path's end the hop may touch that path; running back along it, beyond
+    a path width from the end, it prints it twice, and the join measures that too."""
+    paths = [_line(y, 0, 10)[0] for y in (0.0, PW, 2 * PW)]
+    samples, label, tree = path_samples(paths, PW)
+    back = hop_figures(np.array([[[10, 0], [5, 0.1]]]), samples, label, tree, PW)
+    assert back["hop_overprint_mm"] == 0.0
+    # From 10 - PW + PW / 2 back to 5: within half a width of samples beyond the end's.
+    assert abs(back["hop_overprint_own_mm"] - (5 - 0.5 * PW)) <= PW / 4
 
 
 def _random_hops(seed):
@@ -107,6 +119,7 @@ def test_the_over_print_is_that_of_every_sample_asked_though_fewer_are(monkeypat
     from pipeline.paths import links
     a, b, _, samples, label, tree = _random_hops(6)
     own_a, own_b = label[tree.query(a)[1]], label[tree.query(b)[1]]
+    end_a, end_b = 2 * own_a, 2 * own_b
     asked = []
     near = links._near_a_third
 
@@ -114,7 +127,7 @@ def test_the_over_print_is_that_of_every_sample_asked_though_fewer_are(monkeypat
         asked.append(len(q))
         return near(q, *rest)
     monkeypatch.setattr(links, "_near_a_third", counted)
-    got = links.over_others(a, b, own_a, own_b, samples, label, tree, 0.5)
+    got = links.over_others(a, b, end_a, end_b, samples, label, tree, 0.5)
     want, total = [], 0
     for p, q, oa, ob in zip(a, b, own_a, own_b):
         n = max(int(np.ceil(np.linalg.norm(q - p) / 0.125)), 1)

@@ -3,9 +3,11 @@
 Stripe paths stop where the stripes fork or the direction field turns over (the
 triangle there holds no path) and where they run into the sheet's edge, so a stripe
 plan has hundreds of pieces whose ends face another piece's end across a small gap.
-A hop is extruded like the paths it joins, so it is only taken where its centre line
-keeps more than half a path width from every other path (it prints over no bead but
-those of the two paths it joins) and stays on the sheet. Among such hops the shortest
+A hop is extruded like the paths it joins, so where its centre line comes within half
+a path width of another path it prints that path's bead twice; the same holds where it
+runs back over one of the two paths it joins, away from the end it leaves it at. A hop
+is only taken where that length stays within a budget (the fewer ends left, the more
+plastic printed twice) and the hop stays on the sheet. Among such hops the shortest
 are taken first, each end at most once (a greedy matching), which leaves fewer loose
 ends than walking from piece to nearest piece; then augmenting paths join more: a loose
 end takes over a join whose other end takes over another, and so on, until one reaches
@@ -27,6 +29,10 @@ _NEIGHBOURS = 16
 _FIRST = 6
 # How many joins deep the search for an augmenting path goes (see :func:`_augment`).
 AUGMENT_DEPTH = 8
+# A hop leaves a path at its end: the path's samples up to this many path widths along
+# it from that end are the hop's own; beyond, a hop within reach of them runs back over
+# its own path, which prints it twice as surely as running over a third one.
+OWN_END_WIDTHS = 1.0
 
 
 def path_samples(paths, pw):
@@ -35,12 +41,24 @@ def path_samples(paths, pw):
     return sample_tree(paths, pw / 4)
 
 
-def over_others(a, b, own_a, own_b, samples, label, tree, pw, limit=np.inf):
-    """For hops from ``a`` to ``b`` ((h, 2) mm) joining paths ``own_a`` and ``own_b``
-    ((h,) int, -1 for none), the length (mm, (h,)) of each whose centre line lies within
-    half a path width of another path (``samples``, ``label``, ``tree`` of
-    :func:`path_samples`). A hop found to run over others for more than ``limit`` mm
-    is not measured further: its figure is then only some length above ``limit``."""
+def end_distances(samples, label):
+    """Each sample's distance (mm) along its path from the path's first and from its last
+    point (``samples``, ``label`` of :func:`path_samples`): (q, 2)."""
+    from pipeline.paths.ends import _arc
+    arc, bounds = _arc(samples, label)
+    return np.stack([arc, arc[bounds[1:] - 1][label] - arc], axis=1)
+
+
+def over_others(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from_end=None):
+    """For hops from ``a`` to ``b`` ((h, 2) mm) leaving and meeting paths at the ends
+    ``end_a`` and ``end_b`` ((h,) int: ``2 c`` the first point of path ``c``, ``2 c + 1``
+    its last, -1 none), the length (mm, (h,)) of each whose centre line lies within half
+    a path width of another path (``samples``, ``label``, ``tree`` of
+    :func:`path_samples`). With ``from_end`` (:func:`end_distances`) the two paths'
+    own samples count too where they lie more than ``OWN_END_WIDTHS`` path widths along
+    them from the joined end (the hop runs back over its own path). A hop found to run
+    over others for more than ``limit`` mm is not measured further: its figure is then
+    only some length above ``limit``."""
     h = len(a)
     if h == 0:
         return np.zeros(0)
@@ -51,8 +69,9 @@ def over_others(a, b, own_a, own_b, samples, label, tree, pw, limit=np.inf):
     cut = np.searchsorted(np.cumsum(n), np.arange(_CHUNK_POINTS, n.sum(), _CHUNK_POINTS))
     cut = np.unique(cut[(cut > 0) & (cut < h)])
     if len(cut):
-        return np.concatenate([over_others(a[p], b[p], own_a[p], own_b[p], samples, label,
-                                           tree, pw, limit) for p in np.split(np.arange(h), cut)])
+        return np.concatenate([over_others(a[p], b[p], end_a[p], end_b[p], samples, label,
+                                           tree, pw, limit, from_end)
+                               for p in np.split(np.arange(h), cut)])
     hop = np.repeat(np.arange(h), n)
     step = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
     t = (step + 0.5) / n[hop]
@@ -67,9 +86,10 @@ def over_others(a, b, own_a, own_b, samples, label, tree, pw, limit=np.inf):
     # at distance delta makes its neighbours closer than reach - delta bad too, unasked.
     for part in (step % 4 == 0, step % 2 == 0, np.ones(len(q), bool)):
         ask = np.flatnonzero(part & ~asked & ~bad & (count * seg <= limit)[hop])
-        found, delta = _near_a_third(q[ask], own_a[hop[ask]], own_b[hop[ask]], label, tree,
+        found, delta = _near_a_third(q[ask], end_a[hop[ask]], end_b[hop[ask]], label, tree,
                                      0.5 * pw, min(_FIRST, len(samples)),
-                                     min(_NEIGHBOURS, len(samples)))
+                                     min(_NEIGHBOURS, len(samples)), from_end,
+                                     OWN_END_WIDTHS * pw)
         asked[ask] = True
         bad[ask[found]] = True
         _spread(bad, ask[found], 0.5 * pw - delta[found], seg[hop[ask[found]]], step, n, hop)
@@ -92,26 +112,34 @@ def _spread(bad, at, room, seg, step, n, hop):
             bad[k[inside]] = True
 
 
-def _near_a_third(q, own_a, own_b, label, tree, reach, k, k_max):
-    """Which points ``q`` ((p, 2) mm) lie within ``reach`` of a path other than their
-    ``own_a`` and ``own_b`` ((p,)), or have ``k_max`` neighbours within it all their own
-    (a third path could lie beyond them): (p,) bool, and the distance to the nearest
-    other path's sample among those asked ((p,) mm, inf where none). The ``k`` nearest
-    are asked first and only points whose ``k`` all lie within reach and are their own
-    ask ``k_max``: the nearest other path among ``k`` is the nearest among ``k_max``,
-    and fewer than ``k`` within reach are all there are (the answer is that of asking
-    ``k_max`` of all)."""
+def _near_a_third(q, end_a, end_b, label, tree, reach, k, k_max, from_end=None,
+                  own_mm=0.0):
+    """Which points ``q`` ((p, 2) mm) lie within ``reach`` of a sample other than their
+    own (of the paths whose ends ``end_a`` and ``end_b`` ((p,)) they join, with
+    ``from_end`` only those up to ``own_mm`` from that end), or have ``k_max``
+    neighbours within it all their own (another could lie beyond them): (p,) bool, and
+    the distance to the nearest other sample among those asked ((p,) mm, inf where
+    none). The ``k`` nearest are asked first and only points whose ``k`` all lie within
+    reach and are their own ask ``k_max``: the nearest other among ``k`` is the nearest
+    among ``k_max``, and fewer than ``k`` within reach are all there are (the answer is
+    that of asking ``k_max`` of all)."""
     d, i = tree.query(q, k=k, distance_upper_bound=reach)
     d, i = d.reshape(len(q), k), i.reshape(len(q), k)
     near = np.isfinite(d)
-    lab = label[np.minimum(i, len(label) - 1)]
-    other = near & (lab != own_a[:, None]) & (lab != own_b[:, None])
+    i = np.minimum(i, len(label) - 1)
+    lab = label[i]
+    other = near
+    for end in (end_a, end_b):
+        own = lab == (end // 2)[:, None]
+        if from_end is not None:
+            own &= from_end[i, (end % 2)[:, None]] <= own_mm
+        other = other & ~own
     bad = other.any(axis=1)
     delta = np.where(bad, d[np.arange(len(q)), np.argmax(other, axis=1)], np.inf)
     full = near[:, -1] & ~bad
     if k < k_max and full.any():
-        bad[full], delta[full] = _near_a_third(q[full], own_a[full], own_b[full], label, tree,
-                                               reach, k_max, k_max)
+        bad[full], delta[full] = _near_a_third(q[full], end_a[full], end_b[full], label, tree,
+                                               reach, k_max, k_max, from_end, own_mm)
     else:
         bad |= full
     return bad, delta
@@ -149,14 +177,15 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     cost = np.linalg.norm(b - a, axis=1) + 2 * pw * _turn(chains, ea, eb, a, b)
 
     known = np.full(len(a), np.nan)
+    from_end = end_distances(samples, label)
 
     def extra(k):
         """Over-print cost of hops ``k``, inf where the hop may not be taken; each hop is
         measured once, whether the greedy matching or the augmenting paths ask first."""
         todo = k[np.isnan(known[k])]
         if len(todo):
-            over = over_others(a[todo], b[todo], ea[todo] // 2, eb[todo] // 2, samples, label,
-                               tree, pw, limit=over_mm)
+            over = over_others(a[todo], b[todo], ea[todo], eb[todo], samples, label, tree, pw,
+                               limit=over_mm, from_end=from_end)
             inside = shapely.contains(footprint, shapely.linestrings(
                 np.stack([a[todo], b[todo]], axis=1)))
             known[todo] = np.where((over <= over_mm) & inside, 4 * over, np.inf)

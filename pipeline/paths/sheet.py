@@ -63,9 +63,9 @@ class Sheet:
     @cached_property
     def pattern(self):
         """The stripe energy's sparse pattern over the vertices' real and imaginary
-        parts: (indices, indptr) of the (2n, 2n) CSR matrix, and which entry of
-        :meth:`matrix`'s values (four 2 x 2 blocks per edge, then the diagonal)
-        lands in each of its slots."""
+        parts: (indices, indptr) of the (2n, 2n) CSR matrix, and which of
+        :meth:`matrix`'s values (each edge's 2 x 2 block and its transpose, entry by
+        entry, then the diagonal) lands in each of its slots."""
         n, (i, j) = len(self.xy), self.edges.T
         rows, cols = [], []
         for a in range(2):

@@ -63,8 +63,9 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, sa
 
 def _ends_inside(traces, poly, pw):
     """Trace ends farther than a path width from the outline ``poly``: where stripes
-    fork or the field has a singular point, a path ends between others and no hop can
-    join it, so the traces can be no fewer than half these (a closed trace has none)."""
+    fork or the field has a singular point, a path ends between others, joined only by a
+    hop that prints over other paths; the traces can be no fewer than half the ends
+    left (a closed trace has none)."""
     import shapely
     ends = [p[[0, -1]] for p in traces
             if len(p) > 1 and not np.allclose(p[0], p[-1], atol=1e-9)]
@@ -88,24 +89,31 @@ def _to_another(points, own, label, tree, reach, k):
 
 
 def hop_figures(hops, samples, label, tree, pw):
-    """``hop_mm``: the extruded length of the hops that join paths inside traces, and
+    """``hop_mm``: the extruded length of the hops that join paths inside traces,
     ``hop_overprint_mm``: how much of it runs over a third path (its centre line within
-    half a path width of a path other than the two it joins), which coverage and
-    overlap, taken over the paths alone, do not see.
+    half a path width of a path other than the two it joins), and
+    ``hop_overprint_own_mm``: how much more runs back over its own two paths, away from
+    the ends it joins them at (:data:`pipeline.paths.links.OWN_END_WIDTHS`); coverage
+    and overlap, taken over the paths alone, see neither.
 
     hops : (h, 2, 2) mm; samples, label, tree : points along the paths, the path of each
     and their KD-tree."""
-    from pipeline.paths.links import over_others
+    from pipeline.paths.links import end_distances, over_others
 
     hops = np.asarray(hops, float).reshape(-1, 2, 2)
     if not len(hops):
-        return {"hop_mm": 0.0, "hop_overprint_mm": 0.0}
-    # The joined paths: those the hop's two ends lie on (each end is a path's point).
-    _, own = tree.query(hops.reshape(-1, 2))
-    own = label[own].reshape(-1, 2)
-    over = over_others(hops[:, 0], hops[:, 1], own[:, 0], own[:, 1], samples, label, tree, pw)
+        return {"hop_mm": 0.0, "hop_overprint_mm": 0.0, "hop_overprint_own_mm": 0.0}
+    # The joined paths' ends: the nearest sample to each end of the hop (a path's end
+    # point), and whichever end of its path that sample lies nearer.
+    from_end = end_distances(samples, label)
+    _, at = tree.query(hops.reshape(-1, 2))
+    end = (2 * label[at] + (from_end[at, 1] < from_end[at, 0])).reshape(-1, 2)
+    args = (hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label, tree, pw)
+    third = over_others(*args)
+    every = over_others(*args, from_end=from_end)
     return {"hop_mm": float(np.linalg.norm(hops[:, 1] - hops[:, 0], axis=1).sum()),
-            "hop_overprint_mm": float(over.sum())}
+            "hop_overprint_mm": float(third.sum()),
+            "hop_overprint_own_mm": float((every - third).sum())}
 
 
 def coverage_grid(samples, label, xy, poly, pw):

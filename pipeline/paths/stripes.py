@@ -26,11 +26,11 @@ from pipeline.paths.sheet import Sheet
 
 
 # Stripe pieces whose ends lie up to this many path widths apart are joined into one
-# path where the hop prints over no other path for more than OVER_FACTOR widths (on the
-# real tiles 10 and 2 leave a third fewer traces than 4 and 0, and a quarter less hop
-# over other paths: the wider reach finds hops that print over less).
+# path where the hop prints over other paths for no more than OVER_FACTOR widths (the
+# profile's ``toolpath.hop_over_widths``; on the real tiles a reach of 10 left a third
+# fewer traces than 4, and 14 no fewer than 10).
 JOIN_FACTOR = 10.0
-OVER_FACTOR = 2.0
+OVER_FACTOR = 6.0
 
 # How far the paths' mean spacing may stray from the path width before the phase is
 # solved again at a corrected width (see :func:`stripe_phase_at_width`).
