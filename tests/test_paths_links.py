@@ -80,6 +80,19 @@ def _random_hops(seed):
     return (a, a + rng.normal(0, 2, (300, 2)), np.full(300, -1)) + links.path_samples(paths, 0.5)
 
 
+def _count_asked(monkeypatch):
+    """The number of points asked of the KD-tree, call by call, from now on: a list."""
+    from pipeline.paths import links
+    asked = []
+    near = links._near_a_third
+
+    def counted(q, *rest):
+        asked.append(len(q))
+        return near(q, *rest)
+    monkeypatch.setattr(links, "_near_a_third", counted)
+    return asked
+
+
 def test_many_hops_are_measured_in_chunks_alike(monkeypatch):
     """Hops measured a chunk at a time (as on a real tile) give what all at once gives."""
     from pipeline.paths import links
@@ -96,13 +109,7 @@ def test_a_hop_over_others_beyond_the_limit_is_not_measured_further(monkeypatch)
     from pipeline.paths import links
     a, b, own, samples, label, tree = _random_hops(5)
     whole = links.over_others(a, b, own, own, samples, label, tree, 0.5)
-    asked = []
-    near = links._near_a_third
-
-    def counted(q, *rest):
-        asked.append(len(q))
-        return near(q, *rest)
-    monkeypatch.setattr(links, "_near_a_third", counted)
+    asked = _count_asked(monkeypatch)
     capped = links.over_others(a, b, own, own, samples, label, tree, 0.5, limit=1.0)
     within = whole <= 1.0
     assert within.any() and (~within).any()
@@ -120,13 +127,7 @@ def test_the_over_print_is_that_of_every_sample_asked_though_fewer_are(monkeypat
     a, b, _, samples, label, tree = _random_hops(6)
     own_a, own_b = label[tree.query(a)[1]], label[tree.query(b)[1]]
     end_a, end_b = 2 * own_a, 2 * own_b
-    asked = []
-    near = links._near_a_third
-
-    def counted(q, *rest):
-        asked.append(len(q))
-        return near(q, *rest)
-    monkeypatch.setattr(links, "_near_a_third", counted)
+    asked = _count_asked(monkeypatch)
     got = links.over_others(a, b, end_a, end_b, samples, label, tree, 0.5)
     want, total = [], 0
     for p, q, oa, ob in zip(a, b, own_a, own_b):
