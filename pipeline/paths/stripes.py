@@ -27,10 +27,11 @@ from pipeline.paths.sheet import Sheet
 
 # Stripe pieces whose ends lie up to this many path widths apart are joined into one
 # path where the hop prints over other paths for no more than OVER_FACTOR widths (the
-# profile's ``toolpath.hop_over_widths``; on the real tiles a reach of 10 left a third
-# fewer traces than 4, and 14 no fewer than 10).
-JOIN_FACTOR = 10.0
-OVER_FACTOR = 6.0
+# profile's ``toolpath.hop_over_widths``). On the real tiles at 175 mm a reach of 9 left
+# 25-36 traces a layer, 8 left 32-44 and 10 26-35 in a tenth more time (three sets of
+# stripes 4.0-4.2, 3.8-4.2 and 4.1-4.7 s); the last stripe of a disk's rim needs 9.
+JOIN_FACTOR = 9.0
+OVER_FACTOR = 8.0
 
 # How far the paths' mean spacing may stray from the path width before the phase is
 # solved again at a corrected width (see :func:`stripe_phase_at_width`).

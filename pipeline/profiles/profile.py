@@ -149,11 +149,12 @@ class ToolpathParams:
     arc_tolerance_mm: float = _num(0.0, strict=False)
     chord_tolerance_mm: float = _num(0.02, strict=False, hi=1.0)
     # How far a hop joining two stripe pieces may print over paths, in path widths
-    # (over third paths, and back over its own two away from their ends): on the real
-    # tiles at 175 mm, 2 left 200-264 traces a layer, 4 left 94-114 for the same
-    # material printed twice as the hops of 2 did before their run back over their own
-    # paths was counted, and 6 leaves 34-51 for hops over 2-2.9 % of the path length.
-    hop_over_widths: float = _num(6.0, strict=False, hi=20.0)
+    # (over third paths, and back over its own two away from their ends). On the real
+    # tiles at 175 mm the hops then print over paths for this share of the path length,
+    # leaving this many traces a layer: 2: 0.9-1.4 %, 196-258; 4: 1.4-2.2 %, 103-123;
+    # 6: 2.0-2.9 %, 39-53; 8: 2.4-3.2 %, 25-36. Before the run back over their own paths
+    # was counted, 2 left 165-191 at 2.6 %, counted alike.
+    hop_over_widths: float = _num(8.0, strict=False, hi=20.0)
 
 
 @dataclass(frozen=True)
