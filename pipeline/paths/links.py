@@ -173,8 +173,10 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     mid = (a + b) / 2
     near = shapely.contains_xy(footprint, mid[:, 0], mid[:, 1])
     a, b, ea, eb = a[near], b[near], ea[near], eb[near]
+    length = np.linalg.norm(b - a, axis=1)
     # A turn costs two widths: across a gap, running straight on beats a U-turn.
-    cost = np.linalg.norm(b - a, axis=1) + 2 * pw * _turn(chains, ea, eb, a, b)
+    cost = length + 2 * pw * _turn(chains, ea, eb, a, b)
+    inside = shapely.contains(footprint, shapely.linestrings(np.stack([a, b], axis=1)))
 
     known = np.full(len(a), np.nan)
     from_end = end_distances(samples, label)
@@ -186,13 +188,19 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
         if len(todo):
             over = over_others(a[todo], b[todo], ea[todo], eb[todo], samples, label, tree, pw,
                                limit=over_mm, from_end=from_end)
-            inside = shapely.contains(footprint, shapely.linestrings(
-                np.stack([a[todo], b[todo]], axis=1)))
-            known[todo] = np.where((over <= over_mm) & inside, 4 * over, np.inf)
+            known[todo] = np.where((over <= over_mm) & inside[todo], 4 * over, np.inf)
         return known[k]
 
+    def allowed(k):
+        """Which of hops ``k`` may be taken: a hop no longer than the budget prints over
+        no more than its length, so only the longer ones are measured."""
+        ok = inside[k].copy()
+        long_ = ok & (length[k] > over_mm)
+        ok[long_] = np.isfinite(extra(k[long_]))
+        return ok
+
     joins = _greedy(ea, eb, cost, len(chains), extra)
-    return _augment(joins, ea, eb, cost, len(chains), extra)
+    return _augment(joins, ea, eb, cost, len(chains), allowed)
 
 
 def _turn(chains, ea, eb, a, b):
@@ -268,7 +276,7 @@ def _greedy(ea, eb, cost, n_chains, extra=None):
     return np.asarray(out, np.int64).reshape(-1, 2)
 
 
-def _augment(joins, ea, eb, cost, n_chains, extra, depth=AUGMENT_DEPTH):
+def _augment(joins, ea, eb, cost, n_chains, allowed, depth=AUGMENT_DEPTH):
     """More ends joined than the greedy matching leaves, by augmenting paths.
 
     From each loose end a breadth-first search alternates a hop not taken and a join
@@ -283,7 +291,7 @@ def _augment(joins, ea, eb, cost, n_chains, extra, depth=AUGMENT_DEPTH):
     point it was entered at: it strands its ends).
 
     Returns (j, 2) int, the joins."""
-    ok = np.flatnonzero(np.isfinite(extra(np.arange(len(ea)))))
+    ok = np.flatnonzero(allowed(np.arange(len(ea))))
     ok = ok[np.argsort(cost[ok], kind="stable")]
     adj = {}
     for x, y in zip(ea[ok].tolist(), eb[ok].tolist()):

@@ -108,9 +108,13 @@ def hop_figures(hops, samples, label, tree, pw):
     from_end = end_distances(samples, label)
     _, at = tree.query(hops.reshape(-1, 2))
     end = (2 * label[at] + (from_end[at, 1] < from_end[at, 0])).reshape(-1, 2)
-    args = (hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label, tree, pw)
-    third = over_others(*args)
-    every = over_others(*args, from_end=from_end)
+    every = over_others(hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label, tree,
+                        pw, from_end=from_end)
+    # Over a third path is part of that: only the hops over some path are asked again.
+    over = np.flatnonzero(every > 0)
+    third = np.zeros(len(hops))
+    third[over] = over_others(hops[over, 0], hops[over, 1], end[over, 0], end[over, 1],
+                              samples, label, tree, pw)
     return {"hop_mm": float(np.linalg.norm(hops[:, 1] - hops[:, 0], axis=1).sum()),
             "hop_overprint_mm": float(third.sum()),
             "hop_overprint_own_mm": float((every - third).sum())}
