@@ -223,7 +223,7 @@ def test_pathless_triangles_are_told_apart_by_cause():
 
 
 def test_stripe_pieces_join_across_a_wider_reach_with_a_little_over_print():
-    """Hops of up to ten widths that run over other paths for at most two widths join
+    """Hops of up to nine widths that run over other paths for at most eight widths join
     more pieces than hops of four widths over none; the paths themselves are unchanged."""
     xy, faces = _disk()
     d = _field("two_half", xy[faces].mean(axis=1))
@@ -233,7 +233,6 @@ def test_stripe_pieces_join_across_a_wider_reach_with_a_little_over_print():
     assert wide["traces"] < strict["traces"], (wide["traces"], strict["traces"])
     for key in ("coverage", "overlap", "spacing_mm"):
         assert wide[key] == strict[key]
-
 
 
 def test_one_sheet_serves_every_direction_of_a_plan():
