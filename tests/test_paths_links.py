@@ -84,12 +84,12 @@ def _count_asked(monkeypatch):
     """The number of points asked of the KD-tree, call by call, from now on: a list."""
     from pipeline.paths import links
     asked = []
-    near = links._near_a_third
+    near = links._near_another
 
     def counted(q, *rest):
         asked.append(len(q))
         return near(q, *rest)
-    monkeypatch.setattr(links, "_near_a_third", counted)
+    monkeypatch.setattr(links, "_near_another", counted)
     return asked
 
 

@@ -86,7 +86,7 @@ def over_others(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from
     # at distance delta makes its neighbours closer than reach - delta bad too, unasked.
     for part in (step % 4 == 0, step % 2 == 0, np.ones(len(q), bool)):
         ask = np.flatnonzero(part & ~asked & ~bad & (count * seg <= limit)[hop])
-        found, delta = _near_a_third(q[ask], end_a[hop[ask]], end_b[hop[ask]], label, tree,
+        found, delta = _near_another(q[ask], end_a[hop[ask]], end_b[hop[ask]], label, tree,
                                      0.5 * pw, min(_FIRST, len(samples)),
                                      min(_NEIGHBOURS, len(samples)), from_end,
                                      OWN_END_WIDTHS * pw)
@@ -106,13 +106,11 @@ def _spread(bad, at, room, seg, step, n, hop):
         if not near.any():
             break
         for sign in (-1, 1):
-            k = at[near] + sign * j
-            inside = (step[at[near]] + sign * j >= 0) & (step[at[near]] + sign * j
-                                                          < n[hop[at[near]]])
-            bad[k[inside]] = True
+            k, s = at[near] + sign * j, step[at[near]] + sign * j
+            bad[k[(s >= 0) & (s < n[hop[at[near]]])]] = True
 
 
-def _near_a_third(q, end_a, end_b, label, tree, reach, k, k_max, from_end=None,
+def _near_another(q, end_a, end_b, label, tree, reach, k, k_max, from_end=None,
                   own_mm=0.0):
     """Which points ``q`` ((p, 2) mm) lie within ``reach`` of a sample other than their
     own (of the paths whose ends ``end_a`` and ``end_b`` ((p,)) they join, with
@@ -138,7 +136,7 @@ def _near_a_third(q, end_a, end_b, label, tree, reach, k, k_max, from_end=None,
     delta = np.where(bad, d[np.arange(len(q)), np.argmax(other, axis=1)], np.inf)
     full = near[:, -1] & ~bad
     if k < k_max and full.any():
-        bad[full], delta[full] = _near_a_third(q[full], end_a[full], end_b[full], label, tree,
+        bad[full], delta[full] = _near_another(q[full], end_a[full], end_b[full], label, tree,
                                                reach, k_max, k_max, from_end, own_mm)
     else:
         bad |= full
@@ -152,6 +150,8 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     ``2 c`` (first point of chain ``c``) and ``2 c + 1`` (last point)
     max_mm : longest hop; footprint : prepared shapely polygon the hop stays in
     samples, label, tree : :func:`path_samples` of the chains, labelled by chain
+    over_mm : the most a hop may print over paths (:func:`over_others`, its own two
+    counted away from their ends)
 
     Returns (j, 2) int, the joined ends.
     """
