@@ -109,6 +109,25 @@ def unique_edges(faces, return_counts=False):
     return (edges, np.diff(np.r_[first, len(key)])) if return_counts else edges
 
 
+def face_sides(faces):
+    """Each triangle's sides numbered as :func:`unique_edges` numbers the edges.
+
+    Returns (sides (m, 3) int: the edge of side k, from corner k to corner k + 1, edges
+    (e, 2) int as :func:`unique_edges`)."""
+    f = np.asarray(faces, dtype=np.int64)
+    n = int(f.max(initial=0)) + 1
+    nxt = np.roll(f, -1, axis=1)
+    key = (np.minimum(f, nxt) * n + np.maximum(f, nxt)).ravel()
+    # Stable: a mesh's keys come in sorted runs, which timsort merges quickly.
+    order = np.argsort(key, kind="stable")
+    first = np.ones(len(key), bool)
+    first[1:] = key[order[1:]] != key[order[:-1]]
+    sides = np.empty(len(key), np.int64)
+    sides[order] = np.cumsum(first) - 1
+    edge_key = key[order[first]]
+    return sides.reshape(-1, 3), np.stack([edge_key // n, edge_key % n], axis=1)
+
+
 def edge_lengths(points, edges):
     """Lengths of ``edges`` ((e, 2) int) over ``points`` ((n, d) float): (e,) float."""
     d = points[edges[:, 1]] - points[edges[:, 0]]

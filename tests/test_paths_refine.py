@@ -49,3 +49,16 @@ def test_forks_are_split_until_their_bare_patch_is_a_sixteenth():
                                                            WIDTH)
     small = np.abs(stripes.signed_areas_2d(xy, faces)).min() / 64 * 1.001
     assert bare.any() and np.all(np.abs(stripes.signed_areas_2d(xy2, faces2[bare > 0])) <= small)
+
+
+def test_each_triangle_side_is_numbered_as_its_edge():
+    """The sides a split halves are numbered once for the whole mesh, in the order of
+    ``unique_edges``: side k of a triangle, from corner k to k + 1, is that edge."""
+    from pipeline.geometry import face_sides, unique_edges
+    xy, faces = _grid()
+    sides, edges = face_sides(faces)
+    assert np.array_equal(edges, unique_edges(faces))
+    for k in range(3):
+        pair = np.sort(np.stack([faces[:, k], faces[:, (k + 1) % 3]], axis=1), axis=1)
+        assert np.array_equal(edges[sides[:, k]], pair)
+    assert [len(a) for a in face_sides(np.zeros((0, 3), int))] == [0, 0]

@@ -14,6 +14,8 @@ patch shrinks to a sixteenth.
 
 import numpy as np
 
+from pipeline.geometry import face_sides
+
 # Jacobi sweeps of the stripe energy on the split triangles: on the real tiles 10 gave
 # the coverage and overlap of a full solve there (30 and 100 no better).
 RELAX_SWEEPS = 10
@@ -47,18 +49,9 @@ def split_mesh(xy, faces, red):
     red = np.asarray(red, bool).copy()
     if not red.any():
         return xy, faces, np.arange(len(faces)), np.zeros((0, 2), np.int64)
-    f = np.asarray(faces, np.int64)
-    nxt = np.roll(f, -1, axis=1)
-    # Each triangle's side k (corners k, k + 1) by a key both its triangles share, and
-    # each side's number among the distinct keys in ascending order.
-    key = (np.minimum(f, nxt) * n + np.maximum(f, nxt)).ravel()
-    order = np.argsort(key, kind="stable")
-    first = np.r_[True, key[order[1:]] != key[order[:-1]]]
-    fe = np.empty(len(key), np.int64)
-    fe[order] = np.cumsum(first) - 1
-    fe, n_sides = fe.reshape(-1, 3), int(first.sum())
+    fe, edges = face_sides(faces)
     while True:
-        marked = np.zeros(n_sides, bool)
+        marked = np.zeros(len(edges), bool)
         marked[fe[red].ravel()] = True
         count = marked[fe].sum(axis=1)
         more = ~red & (count >= 2)
@@ -68,8 +61,7 @@ def split_mesh(xy, faces, red):
     me = np.flatnonzero(marked)
     mid = np.full(len(marked), -1)
     mid[me] = n + np.arange(len(me))
-    side_key = key[order[first]][me]
-    sides = np.stack([side_key // n, side_key % n], axis=1)
+    sides = edges[me]
     mid, marked = mid[fe], marked[fe]
     xy2 = np.vstack([xy, 0.5 * (xy[sides[:, 0]] + xy[sides[:, 1]])])
     r = np.flatnonzero(red)

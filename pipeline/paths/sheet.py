@@ -12,7 +12,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.geometry import signed_areas_2d, unique_edges
+from pipeline.geometry import face_sides, signed_areas_2d
 
 
 class Sheet:
@@ -23,9 +23,13 @@ class Sheet:
         self.faces = np.asarray(faces)
 
     @cached_property
+    def _sides(self):
+        return face_sides(self.faces)
+
+    @property
     def edges(self):
         """(e, 2) int: every side once, the smaller vertex first, rows sorted."""
-        return unique_edges(self.faces)
+        return self._sides[1]
 
     @cached_property
     def face_area(self):
@@ -37,15 +41,11 @@ class Sheet:
         """(n,) mm2: a third of each triangle round the vertex."""
         return np.bincount(self.faces.ravel(), np.repeat(self.face_area / 3, 3), len(self.xy))
 
-    @cached_property
+    @property
     def face_edges(self):
         """(m, 3) int: the edge (row of :attr:`edges`) of each triangle's side k, from
         corner k to corner k + 1."""
-        n, f = len(self.xy), self.faces
-        key = self.edges[:, 0] * n + self.edges[:, 1]
-        return np.stack([np.searchsorted(key, np.minimum(f[:, k], f[:, (k + 1) % 3]) * n
-                                         + np.maximum(f[:, k], f[:, (k + 1) % 3]))
-                         for k in range(3)], axis=1)
+        return self._sides[0]
 
     @cached_property
     def weights(self):
