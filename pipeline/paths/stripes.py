@@ -325,15 +325,15 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True, sheet=None)
     bare_mm2 = float(np.abs(signed_areas_2d(xy, sub[bare > 0])).sum())
     pts, keys, face = stripe_segments(xy, sub, u, bare == 0)
     seg_sigma = np.asarray(sigma, dtype=float)[parent[face]]
-    chains, faces = [], []
+    chains, seg_faces = [], []
     for steps, closed in chain(keys):
         e = np.asarray(steps)
         seg, entry = e // 2, e % 2
         # Each segment's entry point, then where the last one is left.
         p = pts[np.append(seg, seg[-1]), np.append(entry, 1 - entry[-1])]
         chains.append((p[:-1] if closed else p, seg_sigma[seg], closed))
-        faces.append(parent[face[seg]])
-    return Stripes(chains, pathless, bare_mm2, faces)
+        seg_faces.append(parent[face[seg]])
+    return Stripes(chains, pathless, bare_mm2, seg_faces)
 
 
 
