@@ -251,3 +251,20 @@ def test_one_sheet_serves_every_direction_of_a_plan():
         assert all(np.array_equal(a, b) for a, b in zip(shared.traces, own.traces))
     A, _ = stripes.stripe_matrix(sheet, stripes.vertex_line_field(sheet, d), WIDTH)
     assert abs(A - A.T).max() < 1e-12
+
+
+def test_rings_beside_other_paths_are_bridged_into_them(monkeypatch):
+    """Round a singular point off the middle, rings nest inside the arcs the sheet's edge
+    cuts: bridged into the paths beside them they need no trace of their own."""
+    from pipeline.paths import bridges
+    xy, faces = _disk()
+    c = xy[faces].mean(axis=1)
+    d = np.stack([-c[:, 1], c[:, 0] - 15.0], 1)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    sigma = np.full(len(faces), 0.2)
+    bridged = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    monkeypatch.setattr(bridges, "bridge_rings", lambda chains, pw: (chains, np.zeros((0, 2, 2))))
+    alone = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    assert bridged["ring_bridges"] > 20 and alone["ring_bridges"] == 0
+    assert bridged["traces"] < alone["traces"]
+    assert bridged["coverage"] == alone["coverage"]

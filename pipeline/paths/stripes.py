@@ -367,8 +367,9 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                      sheet=None):
     """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
     ends lie up to ``join_factor`` path widths apart joined first where the hop runs over
-    other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), then
-    chained into traces by short hops, as the isoline method's paths are; each segment
+    other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), closed
+    ones bridged to a neighbour (:mod:`pipeline.paths.bridges`), then chained into
+    traces by short hops, as the isoline method's paths are; each segment
     carries the shrink of the triangle it crosses; the report adds
     ``direction_angle_deg``. With ``refine`` the phase is carried to finer triangles
     (:func:`plan_stripes`); path ends that come within ``retract`` path widths of
@@ -379,6 +380,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     import shapely
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
+    from pipeline.paths.bridges import bridge_rings
     from pipeline.paths.ends import retract_ends
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
@@ -403,6 +405,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     joins = join_ends(chains, width_mm, join_factor * width_mm, footprint, samples, label, tree,
                       over_mm=over_factor * width_mm)
     joined, join_hops = merge_joined(chains, joins)
+    joined, rungs = bridge_rings(joined, width_mm)
     traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
                                        merge_angle_deg, merge_sigma, footprint)
     info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
@@ -420,4 +423,5 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["fork_triangles"] = int((drawn.pathless == FORK).sum())
     info["branch_triangles"] = int((drawn.pathless == BRANCH).sum())
     info["pathless_mm2"] = drawn.bare_mm2
+    info["ring_bridges"] = len(rungs) // 2
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
