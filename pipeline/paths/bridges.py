@@ -13,7 +13,7 @@ which would only trade their ends.
 import numpy as np
 
 from pipeline.paths.ends import _arc, _cut
-from pipeline.paths.links import merge_joined
+from pipeline.paths.links import _pieces, merge_joined
 from pipeline.paths.stats import sample_tree
 
 # A bridge is laid where the two paths lie this far apart (in path widths) at both
@@ -151,15 +151,8 @@ def _chosen(sites, closed, arc, bounds, pw):
     Returns a list of (path, start mm, stop mm, path, start mm, stop mm, crossed), the
     ring's stretch first; ``crossed``: the neighbour runs the other way."""
     label = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
-    parent = list(range(len(closed)))
+    parent, root = _pieces(len(closed))
     open_ = [not c for c in closed]
-
-    def root(c):
-        while parent[c] != c:
-            parent[c] = parent[parent[c]]
-            c = parent[c]
-        return c
-
     taken = {}
     cuts = []
     for i, i2, j, j2 in sites.tolist():
@@ -180,6 +173,8 @@ def _chosen(sites, closed, arc, bounds, pw):
 
 
 def _clashes(taken, cut, pw):
+    """Whether ``cut`` (path, start mm, stop mm) comes within ``pw`` of a stretch
+    already left out of that path."""
     c, s, t = cut
     return any(s < t0 + pw and t > s0 - pw for s0, t0 in taken.get(c, ()))
 
