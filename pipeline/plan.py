@@ -391,7 +391,8 @@ def _free_sheet(result, hf, profile, stage, timing):
         return stripe_toolpaths(result.xy_bed, mesh.faces, direction, shrink,
                                 profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
                                 merge_sigma=tp.merge_sigma, level=mesh.vertex_level,
-                                over_factor=tp.hop_over_widths, sheet=sheet)
+                                over_factor=tp.hop_over_widths, sheet=sheet,
+                                rim_tail_factor=tp.rim_tail_widths)
     lower, upper = result.curvature.group_directions(flat.direction)
     result.toolpaths = stripes(lower)
     result.upper_toolpaths = stripes(upper) if result.curvature.crossed else None

@@ -202,9 +202,12 @@ def test_joining_stripe_pieces_leaves_fewer_traces_and_less_overprint():
     xy, faces = _disk()
     d = _field("two_half", xy[faces].mean(axis=1))
     sigma = np.full(len(faces), 0.2)
-    walked = stripe_toolpaths(xy, faces, d, sigma, WIDTH, join_factor=0.0).info
-    joined = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
-    tight = stripe_toolpaths(xy, faces, d, sigma, WIDTH, over_factor=0.0).info
+    # Joined at the edge, an end leaves a path's tail out: the paths would differ.
+    walked = stripe_toolpaths(xy, faces, d, sigma, WIDTH, join_factor=0.0,
+                              rim_tail_factor=0.0).info
+    joined = stripe_toolpaths(xy, faces, d, sigma, WIDTH, rim_tail_factor=0.0).info
+    tight = stripe_toolpaths(xy, faces, d, sigma, WIDTH, over_factor=0.0,
+                             rim_tail_factor=0.0).info
     assert joined["traces"] <= tight["traces"] < walked["traces"]
     assert tight["hop_overprint_mm"] < walked["hop_overprint_mm"]
     for key in ("coverage", "overlap", "spacing_mm"):
@@ -268,3 +271,20 @@ def test_rings_beside_other_paths_are_bridged_into_them(monkeypatch):
     assert bridged["ring_bridges"] > 20 and alone["ring_bridges"] == 0
     assert bridged["traces"] < alone["traces"]
     assert bridged["coverage"] == alone["coverage"]
+
+
+def test_an_end_at_the_edge_joins_the_path_beside_it():
+    """Round a singular point off the middle the paths graze the edge: an end there
+    joins the path a width in, whose tail along the edge is left out (and not counted
+    as covered)."""
+    xy, faces = _disk()
+    c = xy[faces].mean(axis=1)
+    d = np.stack([-c[:, 1], c[:, 0] - 15.0], 1)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    sigma = np.full(len(faces), 0.2)
+    joined = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    kept = stripe_toolpaths(xy, faces, d, sigma, WIDTH, rim_tail_factor=0.0).info
+    assert joined["rim_tails"] >= 1 and kept["rim_tails"] == 0
+    assert joined["traces"] < kept["traces"]
+    bare = joined["rim_tail_mm"] * WIDTH / (np.pi * 30.0 ** 2)
+    assert 0.2 * bare < kept["coverage"] - joined["coverage"] < 2 * bare

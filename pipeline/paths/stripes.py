@@ -32,6 +32,10 @@ from pipeline.paths.sheet import Sheet
 # stripes 4.0-4.2, 3.8-4.2 and 4.1-4.7 s); the last stripe of a disk's rim needs 9.
 JOIN_FACTOR = 9.0
 OVER_FACTOR = 8.0
+# An end at the sheet's edge is joined to the path beside it by leaving out that path's
+# tail along the edge where the tail is no longer than this many path widths (the
+# profile's ``toolpath.rim_tail_widths``; see :mod:`pipeline.paths.rims`).
+RIM_TAIL = 20.0
 
 # How far the paths' mean spacing may stray from the path width before the phase is
 # solved again at a corrected width (see :func:`stripe_phase_at_width`).
@@ -364,7 +368,7 @@ def _wrap(a):
 def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                      merge_sigma=0.005, link_factor=1.6, join_factor=JOIN_FACTOR,
                      over_factor=OVER_FACTOR, refine=True, retract=REACH, level=None,
-                     sheet=None):
+                     sheet=None, rim_tail_factor=RIM_TAIL):
     """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
     ends lie up to ``join_factor`` path widths apart joined first where the hop runs over
     other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), closed
@@ -378,10 +382,12 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     paths turn away from the isolines (``isoline_angle_deg``, as the isoline method's
     report does). ``sheet``: as :func:`plan_stripes`'."""
     import shapely
+    from scipy.spatial import cKDTree
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
     from pipeline.paths.bridges import bridge_rings
     from pipeline.paths.ends import retract_ends
+    from pipeline.paths.rims import join_at_rim, on_tails
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
     xy = np.asarray(xy, dtype=float)
@@ -406,10 +412,17 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                       over_mm=over_factor * width_mm)
     joined, join_hops = merge_joined(chains, joins)
     joined, rungs = bridge_rings(joined, width_mm)
+    joined, rim_hops, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor)
+    if tails:
+        # The tails left out print nothing: the figures are those of the paths printed.
+        keep = ~on_tails(samples, tails, width_mm)
+        samples, label = samples[keep], label[keep]
+        tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
     traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
                                        merge_angle_deg, merge_sigma, footprint)
     info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
-                        hops=np.concatenate([join_hops, hops]), samples=(samples, label, tree))
+                        hops=np.concatenate([join_hops, rim_hops, hops]),
+                        samples=(samples, label, tree))
     fields = {"direction_angle_deg": direction}
     if level is not None:
         from pipeline.layout.curvature import isoline_directions
@@ -424,4 +437,6 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["branch_triangles"] = int((drawn.pathless == BRANCH).sum())
     info["pathless_mm2"] = drawn.bare_mm2
     info["ring_bridges"] = len(rungs) // 2
+    info["rim_tails"] = len(tails)
+    info["rim_tail_mm"] = float(sum(_length(t) for t in tails))
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)

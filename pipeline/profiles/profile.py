@@ -155,6 +155,9 @@ class ToolpathParams:
     # 6: 2.0-2.9 %, 39-53; 8: 2.4-3.2 %, 25-36. Before the run back over their own paths
     # was counted, 2 left 165-191 at 2.6 %, counted alike.
     hop_over_widths: float = _num(8.0, strict=False, hi=20.0)
+    # An end at the sheet's edge joins the path beside it, that path's tail along the
+    # edge left out, where the tail is no longer than this many path widths (0: never).
+    rim_tail_widths: float = _num(20.0, strict=False, hi=100.0)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,76 @@
+"""Ends at the sheet's edge joined to the path beside them, that path's tail along the
+edge left out: paths meeting the edge at a slant end further apart than a hop reaches."""
+
+import numpy as np
+import shapely
+
+from pipeline.paths.links import path_samples
+from pipeline.paths.rims import join_at_rim, on_tails
+
+PW = 0.5
+ANGLE = np.radians(3.0)
+EDGE = shapely.box(-5.0, 0.0, 40.0, 10.0)
+
+
+def _slant(x_end, x0=0.0, k=120):
+    """A path running down to the edge (y = 0) at a slant, ending at ``x_end``."""
+    x = np.linspace(x0, x_end, k)
+    return (np.c_[x, (x_end - x) * np.tan(ANGLE)], np.full(k - 1, 0.25), False)
+
+
+def _two():
+    # The second path lies a path width above the first, so it meets the edge
+    # PW / sin(3 degrees) = 9.6 mm further on.
+    return [_slant(10.0), _slant(10.0 + PW / np.sin(ANGLE))]
+
+
+def test_an_end_at_the_edge_joins_the_path_beside_it_whose_tail_is_left_out():
+    merged, hops, tails = join_at_rim(_two(), PW, EDGE.boundary, longest=40)
+    assert len(merged) == 1 and len(hops) == 1 and len(tails) == 1
+    # A U-turn straight up from the first path's end to the second path above it.
+    (a, b), = hops
+    assert np.allclose(sorted([a[1], b[1]]), [0.0, PW], atol=0.06)
+    assert abs(a[0] - 10.0) < 0.1 and abs(b[0] - 10.0) < 0.1
+    # The tail: the second path from above the first one's end to its own end.
+    tail = tails[0]
+    assert abs(np.linalg.norm(np.diff(tail, axis=0), axis=1).sum() - PW / np.sin(ANGLE)) < 0.2
+    assert np.allclose(sorted([tail[0][0], tail[-1][0]]), [10.0, 10.0 + PW / np.sin(ANGLE)],
+                       atol=0.1)
+    # The path printed keeps both far ends (at x = 0) and every shrink.
+    p, sg, closed = merged[0]
+    assert not closed and np.allclose(p[[0, -1], 0], 0.0) and np.allclose(sg, 0.25)
+
+
+def test_a_tail_longer_than_allowed_is_kept():
+    # The tail is 9.6 mm, 19 path widths.
+    merged, hops, tails = join_at_rim(_two(), PW, EDGE.boundary, longest=18)
+    assert len(merged) == 2 and len(hops) == 0 and tails == []
+    assert join_at_rim(_two(), PW, EDGE.boundary, longest=0)[2] == []
+
+
+def test_a_tail_that_leaves_the_edge_is_kept():
+    # The second path turns away from the edge before it ends: cutting it back would
+    # leave bare sheet inside, not a sliver at the edge.
+    first, second = _two()
+    p = second[0].copy()
+    p[p[:, 0] > 14.0, 1] += 3.0
+    merged, hops, tails = join_at_rim([first, (p, second[1], False)], PW, EDGE.boundary, 40)
+    assert len(merged) == 2 and tails == []
+
+
+def test_ends_away_from_the_edge_are_left_to_the_hops():
+    lifted = shapely.box(-5.0, -2.0, 40.0, 10.0).boundary      # the ends 2 mm inside
+    merged, hops, tails = join_at_rim(_two(), PW, lifted, longest=40)
+    assert len(merged) == 2 and tails == []
+
+
+def test_the_samples_of_a_tail_left_out_are_told_apart():
+    chains = _two()
+    _, _, tails = join_at_rim(chains, PW, EDGE.boundary, longest=40)
+    samples, label, _ = path_samples([p for p, _, _ in chains], PW)
+    gone = on_tails(samples, tails, PW)
+    # Only the second path's samples beyond x = 10, none of the first path's.
+    assert not gone[label == 0].any()
+    second = samples[label == 1]
+    clear = np.abs(second[:, 0] - 10.0) > 0.15
+    assert np.array_equal(gone[label == 1][clear], second[clear, 0] > 10.0)
