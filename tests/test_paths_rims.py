@@ -5,7 +5,7 @@ import numpy as np
 import shapely
 
 from pipeline.paths.links import path_samples
-from pipeline.paths.rims import join_at_rim, on_tails
+from pipeline.paths.rims import join_at_rim, printed_samples
 
 PW = 0.5
 ANGLE = np.radians(3.0)
@@ -68,9 +68,17 @@ def test_the_samples_of_a_tail_left_out_are_told_apart():
     chains = _two()
     _, _, tails = join_at_rim(chains, PW, EDGE.boundary, longest=40)
     samples, label, _ = path_samples([p for p, _, _ in chains], PW)
-    gone = on_tails(samples, tails, PW)
-    # Only the second path's samples beyond x = 10, none of the first path's.
-    assert not gone[label == 0].any()
-    second = samples[label == 1]
-    clear = np.abs(second[:, 0] - 10.0) > 0.15
-    assert np.array_equal(gone[label == 1][clear], second[clear, 0] > 10.0)
+    left, left_label, tree = printed_samples(samples, label, tails, PW)
+    # All of the first path's samples and the second path's up to x = 10.
+    assert np.array_equal(left[left_label == 0], samples[label == 0])
+    second = left[left_label == 1]
+    assert second[:, 0].max() < 10.15 and len(second) > 0
+    assert tree.n == len(left)
+
+
+def test_a_path_left_out_whole_leaves_the_others_numbered_in_a_row():
+    lines = [np.c_[np.linspace(0, 5, 11), np.full(11, y)] for y in (0.0, 1.0, 2.0)]
+    samples, label, _ = path_samples(lines, PW)
+    left, left_label, _ = printed_samples(samples, label, [lines[1]], PW)
+    assert sorted(set(left_label.tolist())) == [0, 1]
+    assert np.array_equal(left[left_label == 1], samples[label == 2])

@@ -150,12 +150,15 @@ def _arc_at(p, at, point):
     return float(at[k] + t[k] * np.sqrt(ab[k] @ ab[k]))
 
 
-def on_tails(samples, tails, pw):
-    """Which of ``samples`` ((q, 2) mm, points along the paths) lie on the tails left out:
-    (q,) bool. Other paths keep more than half a path width from a tail."""
+def printed_samples(samples, label, tails, pw):
+    """The path samples (``samples`` (q, 2) mm on paths ``label`` (q,)) less those on the
+    tails left out, with their KD-tree; paths left out whole are dropped from the
+    numbering, so the paths left are numbered 0, 1, ... in the order they were. Other
+    paths keep more than half a path width from a tail. Returns ((p, 2), (p,), tree)."""
     from scipy.spatial import cKDTree
-    if not tails:
-        return np.zeros(len(samples), bool)
-    dense, _, _ = sample_tree(tails, pw / 16)
-    d, _ = cKDTree(dense).query(samples, distance_upper_bound=pw / 8)
-    return np.isfinite(d)
+    if tails:
+        dense, _, _ = sample_tree(tails, pw / 16)
+        d, _ = cKDTree(dense).query(samples, distance_upper_bound=pw / 8)
+        samples, label = samples[~np.isfinite(d)], label[~np.isfinite(d)]
+    label = np.unique(label, return_inverse=True)[1].reshape(-1)
+    return samples, label, cKDTree(samples, balanced_tree=False, compact_nodes=False)

@@ -382,12 +382,11 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     paths turn away from the isolines (``isoline_angle_deg``, as the isoline method's
     report does). ``sheet``: as :func:`plan_stripes`'."""
     import shapely
-    from scipy.spatial import cKDTree
     from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
                                         boundary_loop)
     from pipeline.paths.bridges import bridge_rings
     from pipeline.paths.ends import retract_ends
-    from pipeline.paths.rims import join_at_rim, on_tails
+    from pipeline.paths.rims import join_at_rim, printed_samples
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles, path_metrics
     xy = np.asarray(xy, dtype=float)
@@ -415,9 +414,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     joined, rim_hops, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor)
     if tails:
         # The tails left out print nothing: the figures are those of the paths printed.
-        keep = ~on_tails(samples, tails, width_mm)
-        samples, label = samples[keep], label[keep]
-        tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
+        samples, label, tree = printed_samples(samples, label, tails, width_mm)
     traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
                                        merge_angle_deg, merge_sigma, footprint)
     info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
