@@ -67,8 +67,8 @@ def test_ends_away_from_the_edge_are_left_to_the_hops():
 def test_the_samples_of_a_tail_left_out_are_told_apart():
     chains = _two()
     _, _, tails = join_at_rim(chains, PW, EDGE.boundary, longest=40)
-    samples, label, _ = path_samples([p for p, _, _ in chains], PW)
-    left, left_label, tree = printed_samples(samples, label, tails, PW)
+    samples, label, tree = path_samples([p for p, _, _ in chains], PW)
+    left, left_label, tree = printed_samples(samples, label, tree, tails, PW)
     # All of the first path's samples and the second path's up to x = 10.
     assert np.array_equal(left[left_label == 0], samples[label == 0])
     second = left[left_label == 1]
@@ -78,7 +78,7 @@ def test_the_samples_of_a_tail_left_out_are_told_apart():
 
 def test_a_path_left_out_whole_leaves_the_others_numbered_in_a_row():
     lines = [np.c_[np.linspace(0, 5, 11), np.full(11, y)] for y in (0.0, 1.0, 2.0)]
-    samples, label, _ = path_samples(lines, PW)
-    left, left_label, _ = printed_samples(samples, label, [lines[1]], PW)
+    samples, label, tree = path_samples(lines, PW)
+    left, left_label, _ = printed_samples(samples, label, tree, [lines[1]], PW)
     assert sorted(set(left_label.tolist())) == [0, 1]
     assert np.array_equal(left[left_label == 1], samples[label == 2])

@@ -411,10 +411,10 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                       over_mm=over_factor * width_mm)
     joined, join_hops = merge_joined(chains, joins)
     joined, rungs = bridge_rings(joined, width_mm)
-    joined, rim_hops, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor)
-    if tails:
-        # The tails left out print nothing: the figures are those of the paths printed.
-        samples, label, tree = printed_samples(samples, label, tails, width_mm)
+    joined, rim_hops, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor,
+                                          printed=(samples, tree))
+    # The tails left out print nothing: the figures are those of the paths printed.
+    samples, label, tree = printed_samples(samples, label, tree, tails, width_mm)
     traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
                                        merge_angle_deg, merge_sigma, footprint)
     info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
