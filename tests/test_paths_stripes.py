@@ -256,34 +256,32 @@ def test_one_sheet_serves_every_direction_of_a_plan():
     assert abs(A - A.T).max() < 1e-12
 
 
-def test_rings_beside_other_paths_are_bridged_into_them(monkeypatch):
-    """Round a singular point off the middle, rings nest inside the arcs the sheet's edge
-    cuts: bridged into the paths beside them they need no trace of their own."""
-    from pipeline.paths import bridges
+def _off_centre(**options):
+    """Paths round a singular point 15 mm off the middle of the 30 mm disk: rings round
+    it, and arcs the edge cuts that graze it on the far side."""
     xy, faces = _disk()
     c = xy[faces].mean(axis=1)
     d = np.stack([-c[:, 1], c[:, 0] - 15.0], 1)
     d /= np.linalg.norm(d, axis=1)[:, None]
-    sigma = np.full(len(faces), 0.2)
-    bridged = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    return stripe_toolpaths(xy, faces, d, np.full(len(faces), 0.2), WIDTH, **options).info
+
+
+def test_rings_beside_other_paths_are_bridged_into_them(monkeypatch):
+    """Rings nest inside the arcs the sheet's edge cuts: bridged into the paths beside
+    them they need no trace of their own."""
+    from pipeline.paths import bridges
+    bridged = _off_centre(rim_tail_factor=0.0)
     monkeypatch.setattr(bridges, "bridge_rings", lambda chains, pw: (chains, np.zeros((0, 2, 2))))
-    alone = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
+    alone = _off_centre(rim_tail_factor=0.0)
     assert bridged["ring_bridges"] > 20 and alone["ring_bridges"] == 0
     assert bridged["traces"] < alone["traces"]
     assert bridged["coverage"] == alone["coverage"]
 
 
 def test_an_end_at_the_edge_joins_the_path_beside_it():
-    """Round a singular point off the middle the paths graze the edge: an end there
-    joins the path a width in, whose tail along the edge is left out (and not counted
-    as covered)."""
-    xy, faces = _disk()
-    c = xy[faces].mean(axis=1)
-    d = np.stack([-c[:, 1], c[:, 0] - 15.0], 1)
-    d /= np.linalg.norm(d, axis=1)[:, None]
-    sigma = np.full(len(faces), 0.2)
-    joined = stripe_toolpaths(xy, faces, d, sigma, WIDTH).info
-    kept = stripe_toolpaths(xy, faces, d, sigma, WIDTH, rim_tail_factor=0.0).info
+    """Where the paths graze the edge, an end there joins the path a width in, whose
+    tail along the edge is left out (and not counted as covered)."""
+    joined, kept = _off_centre(), _off_centre(rim_tail_factor=0.0)
     assert joined["rim_tails"] >= 1 and kept["rim_tails"] == 0
     assert joined["traces"] < kept["traces"]
     bare = joined["rim_tail_mm"] * WIDTH / (np.pi * 30.0 ** 2)
