@@ -43,6 +43,9 @@ PLAN_COLUMNS = [
      "%g mm: %s" % (r["hold_smooth_mm"], _pct(r.get("hold_displacement")))),
     ("traces", lambda n, r: _traces(r)),
     ("trace ends inside", lambda n, r: r.get("ends_inside")),
+    ("ring bridges", lambda n, r: r.get("ring_bridges")),
+    ("rim tails", lambda n, r: None if not r.get("rim_tails") else
+     "%d (%.0f mm)" % (r["rim_tails"], r.get("rim_tail_mm") or 0.0)),
     ("spacing p05-p95 mm", lambda n, r: _spacing(r.get("spacing_mm"))),
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
     ("overlap", lambda n, r: _pct(r.get("overlap"))),
@@ -141,7 +144,11 @@ def render(groups):
                 "last) print paths across the others' (the curvature across them); `trace "
                 "ends inside`: the lower layers' trace ends more than a path width from the "
                 "outline, where the stripes fork and no hop within its budget joins them (the "
-                "traces are at least half as many); `hops over paths`: the length of the lower "
+                "traces are at least half as many); `ring bridges`: the lower layers' closed "
+                "paths bridged into a path beside them; `rim tails`: the lower layers' ends at "
+                "the edge joined to the path beside them, that path's tail along the edge left "
+                "out (`toolpath.rim_tail_widths` widths at most; their length left bare); "
+                "`hops over paths`: the length of the lower "
                 "layers' hops that prints over other paths, or back over the two it joins "
                 "(`toolpath.hop_over_widths` a hop at most), as a share of their path length: "
                 "plastic printed twice that `overlap`, taken over the paths alone, does not see. "

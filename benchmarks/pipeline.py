@@ -129,6 +129,8 @@ print(json.dumps({
     "simulated_vertices": r["simulation"]["sheet_vertices"],
     "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
     "ends_inside": r["toolpath"].get("ends_inside"),
+    "ring_bridges": r["toolpath"].get("ring_bridges"),
+    "rim_tails": r["toolpath"].get("rim_tails"), "rim_tail_mm": r["toolpath"].get("rim_tail_mm"),
     # The lower layers' hops printing over paths (third ones, or back over their own),
     # as a share of the path length: plastic printed twice that overlap does not see.
     "hop_overprint_share": (None if "hop_overprint_mm" not in r["toolpath"] else round(
