@@ -273,6 +273,11 @@ def boundary_loops(faces):
     return loops
 
 
+def polyline_length(points):
+    """Length (mm) of the polyline ``points`` ((k, 2) mm; 0 for fewer than two)."""
+    return float(np.hypot(*np.diff(points, axis=0).T).sum()) if len(points) > 1 else 0.0
+
+
 def polygon_area(points):
     """Signed area of a closed polygon ((k, 2), first point not repeated); > 0 counter-clockwise."""
     x, y = points[:, 0], points[:, 1]

@@ -14,16 +14,13 @@ import numpy as np
 
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
-from pipeline.paths.stats import sample_tree
+from pipeline.paths.stats import nearest_other, sample_tree
 
 # A bridge is laid where the two paths lie this far apart (in path widths) at both
 # rungs, a path width apart along the ring; along its neighbour (round a small ring, the
 # outer path's stretch is the longer) the rungs lie up to RUN widths apart.
 SPACING = (0.7, 1.3)
 RUN = 3.0
-# Neighbours asked per sample: a quarter width apart, about nine of a sample's own path
-# lie within a width of it.
-_NEIGHBOURS = 16
 # Ring samples asked: every fourth (a path width apart), at most so many a ring (the
 # 175 mm dome's rings all asked a width apart took 0.8 s against 0.2 and laid the same
 # 378 rungs); and the sites kept for each pair of paths side by side.
@@ -72,7 +69,8 @@ def _sites(samples, label, tree, arc, bounds, closed, pw):
     i2 = np.searchsorted(key, key[i] + pw)
     ok = i2 < bounds[label[i] + 1] - 1
     i, i2 = i[ok], i2[ok]
-    j, dj = _other(samples, label, tree, np.r_[i, i2], pw)
+    j, dj = nearest_other(samples, label, tree, np.r_[i, i2], SPACING[1] * pw)
+    j[dj < SPACING[0] * pw] = -1
     j, j2 = j[:len(i)], j[len(i):]
     dj, dj2 = dj[:len(i)], dj[len(i):]
     lo = SPACING[0]
@@ -115,34 +113,6 @@ def _rank(value, group):
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
     return rank
-
-
-def _other(samples, label, tree, at, pw):
-    """For samples ``at``, the nearest sample on another path within the bridge's
-    spacing (-1: none) and its distance (mm): (a,), (a,). Where a path's own points
-    crowd (corners closer than a quarter width) and fill all the neighbours asked, more
-    are asked."""
-    lo, hi = SPACING
-    j = np.full(len(at), -1, np.int64)
-    near = np.full(len(at), np.inf)
-    ask, k = np.arange(len(at)), _NEIGHBOURS
-    while len(ask):
-        k = min(k, len(samples))
-        d, n = tree.query(samples[at[ask]], k=k, distance_upper_bound=hi * pw)
-        d, n = d.reshape(len(ask), k), n.reshape(len(ask), k)
-        n = np.minimum(n, len(label) - 1)
-        other = (label[n] != label[at[ask]][:, None]) & np.isfinite(d)
-        has = other.any(axis=1)
-        first = np.argmax(other, axis=1)
-        rows = np.arange(len(ask))
-        near[ask[has]] = d[rows, first][has]
-        j[ask[has]] = n[rows, first][has]
-        full = ~has & np.isfinite(d[:, -1])
-        if k == len(samples):
-            break
-        ask, k = ask[full], 4 * k
-    j[near < lo * pw] = -1
-    return j, near
 
 
 def _chosen(sites, closed, arc, bounds, pw):

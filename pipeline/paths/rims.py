@@ -11,9 +11,10 @@ bare: the tail's bead, between the edge and the paths further in.
 
 import numpy as np
 
+from pipeline.geometry import polyline_length
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
-from pipeline.paths.stats import sample_tree
+from pipeline.paths.stats import nearest_other, sample_tree
 
 # An end within AT_EDGE path widths of the outline is joined to the path beside it that
 # far off (path widths), whose tail lies within ALONG_EDGE widths of the outline all along
@@ -21,7 +22,6 @@ from pipeline.paths.stats import sample_tree
 AT_EDGE = 1.0
 SPACING = (0.6, 1.4)
 ALONG_EDGE = 1.5
-_NEIGHBOURS = 16
 
 
 def join_at_rim(chains, pw, boundary, longest, printed=None):
@@ -46,7 +46,8 @@ def join_at_rim(chains, pw, boundary, longest, printed=None):
     chain = end_of[label] // 2
     edge = _edge_distance(boundary, samples, pw)
     ends = bounds[:-1][edge[bounds[:-1]] <= AT_EDGE * pw]
-    found = _beside(samples, chain, tree, ends, pw)
+    found, off = nearest_other(samples, chain, tree, ends, SPACING[1] * pw)
+    found[off < SPACING[0] * pw] = -1
     ends, found = ends[found >= 0], found[found >= 0]
     tail = from_end[found]
     ok = (tail <= longest * pw) & (tail > 0) & _hugs(edge, bounds, label[found], found, pw)
@@ -55,7 +56,7 @@ def join_at_rim(chains, pw, boundary, longest, printed=None):
         ok &= ~np.isfinite(printed[1].query(mid, distance_upper_bound=pw / 3)[0])
     ends, found, tail = ends[ok], found[ok], tail[ok]
     end_id, tail_id = end_of[label[ends]], end_of[label[found]]
-    length = np.array([_length(p) for p, _, _ in chains])
+    length = np.array([polyline_length(p) for p, _, _ in chains])
     picked = _picked(end_id, tail_id, tail, length, pw)
     if not picked:
         return chains, np.zeros((0, 2, 2)), []
@@ -87,28 +88,6 @@ def _edge_distance(boundary, points, pw):
     from scipy.spatial import cKDTree
     dense = shapely.get_coordinates(shapely.segmentize(boundary, pw / 4))
     return cKDTree(dense).query(points)[0]
-
-
-def _length(p):
-    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(p) > 1 else 0.0
-
-
-def _beside(samples, chain, tree, at, pw):
-    """For samples ``at``, the nearest sample of another chain (``chain`` (q,) of each
-    sample) within the spacing (-1: none): (a,)."""
-    lo, hi = SPACING
-    if not len(at):
-        return np.zeros(0, np.int64)
-    k = min(_NEIGHBOURS, len(samples))
-    d, n = tree.query(samples[at], k=k, distance_upper_bound=hi * pw)
-    d, n = d.reshape(len(at), k), n.reshape(len(at), k)
-    n = np.minimum(n, len(chain) - 1)
-    other = (chain[n] != chain[at][:, None]) & np.isfinite(d)
-    has = other.any(axis=1)
-    first = np.argmax(other, axis=1)
-    rows = np.arange(len(at))
-    hit = has & (d[rows, first] >= lo * pw)
-    return np.where(hit, n[rows, first], -1)
 
 
 def _hugs(edge, bounds, stretch, found, pw):

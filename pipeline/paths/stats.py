@@ -88,6 +88,32 @@ def _to_another(points, own, label, tree, reach, k):
     return d[has, np.argmax(other[has], axis=1)]
 
 
+def nearest_other(samples, label, tree, at, reach, k=16):
+    """For samples ``at`` ((a,) int), the nearest sample of another path (``label`` (q,)
+    the path of each of ``samples``, ``tree`` their KD-tree) within ``reach`` mm, -1
+    where none, and its distance (mm, inf where none): (a,), (a,). ``k`` neighbours are
+    asked first; where a path's own points crowd (corners closer than the sampling) and
+    fill them all, four times as many are asked again."""
+    j = np.full(len(at), -1, np.int64)
+    near = np.full(len(at), np.inf)
+    ask = np.arange(len(at))
+    while len(ask):
+        k = min(k, len(samples))
+        d, n = tree.query(samples[at[ask]], k=k, distance_upper_bound=reach)
+        d, n = d.reshape(len(ask), k), n.reshape(len(ask), k)
+        n = np.minimum(n, len(label) - 1)
+        other = (label[n] != label[at[ask]][:, None]) & np.isfinite(d)
+        has = other.any(axis=1)
+        first = np.argmax(other, axis=1)
+        rows = np.arange(len(ask))
+        near[ask[has]] = d[rows, first][has]
+        j[ask[has]] = n[rows, first][has]
+        if k == len(samples):
+            break
+        ask, k = ask[~has & np.isfinite(d[:, -1])], 4 * k
+    return j, near
+
+
 def hop_figures(hops, samples, label, tree, pw):
     """``hop_mm``: the extruded length of the hops that join paths inside traces,
     ``hop_overprint_mm``: how much of it runs over a third path (its centre line within

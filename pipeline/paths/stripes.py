@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from pipeline.geometry import hat_gradients, quarter_turn, signed_areas_2d
+from pipeline.geometry import hat_gradients, polyline_length, quarter_turn, signed_areas_2d
 from pipeline.paths.ends import REACH
 from pipeline.paths.sheet import Sheet
 
@@ -356,11 +356,6 @@ def direction_angles(steps, face, *directions):
     return out
 
 
-def _length(points):
-    """Length (mm) of the polyline ``points`` ((k, 2) mm)."""
-    return float(np.hypot(*np.diff(points, axis=0).T).sum())
-
-
 def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
@@ -399,7 +394,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     # A piece shorter than a path width is a blob, not a path: where stripes graze the
     # outline's triangles (the 175 mm dome's rim left 14 of 0.03-0.3 mm beside its one
     # trace) each would print a travel and a retraction for less than a bead's width.
-    chains = [c for c in chains if c[2] or _length(c[0]) >= width_mm] or chains
+    chains = [c for c in chains if c[2] or polyline_length(c[0]) >= width_mm] or chains
     face = np.concatenate([t[:, 1] for _, t, _ in chains]).astype(np.int64)
     chains = [(p, t[:, 0], closed) for p, t, closed in chains]
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
@@ -435,5 +430,5 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["pathless_mm2"] = drawn.bare_mm2
     info["ring_bridges"] = len(rungs) // 2
     info["rim_tails"] = len(tails)
-    info["rim_tail_mm"] = float(sum(_length(t) for t in tails))
+    info["rim_tail_mm"] = float(sum(polyline_length(t) for t in tails))
     return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
