@@ -273,6 +273,12 @@ def boundary_loops(faces):
     return loops
 
 
+def polyline_arc(points):
+    """Arc length (mm) along the polyline ``points`` ((k, 2) mm) at each of its points,
+    0 at the first: (k,)."""
+    return np.r_[0.0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))]
+
+
 def polyline_length(points):
     """Length (mm) of the polyline ``points`` ((k, 2) mm; 0 for fewer than two)."""
     return float(np.hypot(*np.diff(points, axis=0).T).sum()) if len(points) > 1 else 0.0

@@ -12,6 +12,7 @@ which would only trade their ends.
 
 import numpy as np
 
+from pipeline.geometry import polyline_arc
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
 from pipeline.paths.stats import nearest_other, sample_tree
@@ -163,7 +164,7 @@ def _cut_apart(chains, paths, cuts):
             pieces.append((p, sg, closed))
             continue
         P = paths[c]
-        at = np.r_[0.0, np.cumsum(np.hypot(*np.diff(P, axis=0).T))]
+        at = polyline_arc(P)
         gaps = sorted(where[c])
         if closed:
             # Round the ring from the end of its first gap to the start of the same.

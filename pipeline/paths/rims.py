@@ -11,7 +11,7 @@ bare: the tail's bead, between the edge and the paths further in.
 
 import numpy as np
 
-from pipeline.geometry import polyline_length
+from pipeline.geometry import polyline_arc, polyline_length
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
 from pipeline.paths.stats import nearest_other, sample_tree
@@ -74,8 +74,8 @@ def _end_stretches(chains, open_, reach):
     for c in np.flatnonzero(open_).tolist():
         p = chains[c][0]
         for side, q in ((0, p), (1, p[::-1])):
-            at = np.cumsum(np.hypot(*np.diff(q, axis=0).T))
-            k = int(np.searchsorted(at, min(reach, at[-1] / 2))) + 1
+            at = polyline_arc(q)
+            k = max(int(np.searchsorted(at, min(reach, at[-1] / 2))), 1)
             out.append(q[:k + 1])
             end_of.append(2 * c + side)
     return out, np.asarray(end_of, np.int64)
@@ -128,7 +128,7 @@ def _cut_tails(chains, cuts):
     tails = []
     for c, ends in by_chain.items():
         p, sg, closed = chains[c]
-        at = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p, axis=0).T))]
+        at = polyline_arc(p)
         start, stop = 0.0, at[-1]
         first, last = p[0], p[-1]
         for side, point in ends:
