@@ -50,6 +50,7 @@ PLAN_COLUMNS = [
     ("coverage", lambda n, r: _f(r.get("coverage"), 3)),
     ("overlap", lambda n, r: _pct(r.get("overlap"))),
     ("hops over paths", lambda n, r: _pct(r.get("hop_overprint_share"))),
+    ("of it dry", lambda n, r: _pct(r.get("hop_dry_share"))),
     ("direction p95 deg", lambda n, r: _f((r.get("direction_angle_deg") or {}).get("p95"), 1)),
     ("load to simulation s", lambda n, r: _median(r, "load_to_simulation_s")),
     ("all stages s", lambda n, r: _median(r, "all_stages_s")),

@@ -136,6 +136,9 @@ print(json.dumps({
     "hop_overprint_share": (None if "hop_overprint_mm" not in r["toolpath"] else round(
         (r["toolpath"]["hop_overprint_mm"] + r["toolpath"].get("hop_overprint_own_mm", 0.0))
         / max(r["toolpath"]["length_mm"], 1e-9), 4)),
+    # How much of it the nozzle moves over without extruding.
+    "hop_dry_share": (None if "dry_mm" not in r["toolpath"] else round(
+        r["toolpath"]["dry_mm"] / max(r["toolpath"]["length_mm"], 1e-9), 4)),
     "upper_traces": g.get("upper_traces"),
     "twist_kept": ((r.get("curvature") or {}).get("twist") or {}).get("kept"),
     "across_kept": ((r.get("curvature") or {}).get("across") or {}).get("kept"),

@@ -103,7 +103,7 @@ def write_outputs(st, plan):
     st.write_image(out["toolpath.png"], render.toolpath_image(
         tp.traces, tp.sigma, lim.s_min, lim.s_max, prof.path_width_mm,
         travel=np.array(travel) if travel else None,
-        title=_toolpath_title(plan)))
+        title=_toolpath_title(plan), dry=tp.dry))
     flat3 = np.column_stack([flat.xy, np.zeros(len(flat.xy))])
     plyio.write_ply(st.path(out["flat.ply"]), flat3, mesh.faces)
     disp = sim.displacement_mm
@@ -218,15 +218,17 @@ def _write_gcode(plan, path):
         sets = [("across", across)] + ([("upper", up)] if up is not None else [])
         shrink = _per_segment(plan, lam.layer_sigma, tp.traces, *[p.traces for _, p in sets])
         return gcode.write_laminate_gcode(
-            (tp.traces, shrink[0]),
-            [(paths.traces, per, groups[role], role) for (role, paths), per in zip(sets, shrink[1:])],
+            (tp.traces, shrink[0], tp.dry),
+            [(paths.traces, per, groups[role], role, paths.dry)
+             for (role, paths), per in zip(sets, shrink[1:])],
             plan.profile, path, name=plan.name, center=False)
     prog = getattr(plan, "curvature", None)
     deltas = (_per_segment(plan, prog.delta_sigma, tp.traces, *([up.traces] if up else []))
               if prog is not None else [None, None])
     return gcode.write_gcode(
         tp.traces, tp.sigma, plan.profile, path, name=plan.name, center=False,
-        deltas=deltas[0], upper=(up.traces, up.sigma, deltas[1]) if up else None)
+        deltas=deltas[0], upper=(up.traces, up.sigma, deltas[1], up.dry) if up else None,
+        dry=tp.dry)
 
 
 def _per_segment(plan, per_triangle, *trace_sets):

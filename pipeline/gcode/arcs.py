@@ -204,28 +204,31 @@ def fit_arcs(points, values, tolerance_mm, max_value_span):
             np.asarray(ccws, dtype=bool))
 
 
-def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span):
+def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span, flow=None):
     """Per-move arrays for a set of traces, arcs where they fit.
 
     ``q`` (n, 2) int um points, ``starts`` (t+1,) trace offsets, ``th_um``
     (n - t, K) int um thickness per segment in each of K layer groups, ``arc_vals``
-    per-segment values an arc may not span by more than ``arc_span``.
+    per-segment values an arc may not span by more than ``arc_span``, ``flow``
+    (n - t,) 1 where a segment extrudes and 0 where it moves dry (default all 1): no
+    arc spans a change of it.
 
     Returns dict of: ``end`` (m,2) int um, ``kind`` (m,) int8 (1 line, 2 cw, 3 ccw),
-    ``ij`` (m,2) int um, ``th`` (m, K) int um, ``len`` (m,) float mm, ``first``
-    (t,) int index of each trace's first move, ``start`` (t,2) int um.
+    ``ij`` (m,2) int um, ``th`` (m, K) int um, ``len`` (m,) float mm, ``flow`` (m,),
+    ``first`` (t,) int index of each trace's first move, ``start`` (t,2) int um.
     """
     t = len(starts) - 1
     seg_starts = starts[:-1] - np.arange(t)  # segments of trace i: seg_starts[i]:...+k_i-1
+    flow = np.ones(len(th_um)) if flow is None else np.asarray(flow, float)
     if tolerance_mm <= 0:
         seg_mask = np.ones(len(q), bool)
         seg_mask[starts[:-1]] = False
         end = q[seg_mask]
         d = (q[1:] - q[:-1])[seg_mask[1:]] / 1000.0
         return {"end": end, "kind": np.ones(len(end), np.int8), "ij": np.zeros_like(end),
-                "th": th_um, "len": np.hypot(d[:, 0], d[:, 1]), "first": seg_starts,
-                "start": q[starts[:-1]]}
-    ends, kinds, ijs, ths, lens, firsts = [], [], [], [], [], []
+                "th": th_um, "len": np.hypot(d[:, 0], d[:, 1]), "flow": flow,
+                "first": seg_starts, "start": q[starts[:-1]]}
+    ends, kinds, ijs, ths, lens, flows, firsts = [], [], [], [], [], [], []
     n_moves = 0
     for i in range(t):
         a, b = starts[i], starts[i + 1]
@@ -234,7 +237,8 @@ def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span):
         s0 = seg_starts[i]
         th = th_um[s0:s0 + (b - a - 1)]
         vals = arc_vals[s0:s0 + (b - a - 1)]
-        e_idx, centre, ccw = fit_arcs(p, vals, tolerance_mm, arc_span)
+        fl = flow[s0:s0 + (b - a - 1)]
+        e_idx, centre, ccw = _fit_by_flow(p, vals, fl, tolerance_mm, arc_span)
         prev = np.concatenate([[0], e_idx[:-1]])
         nseg = e_idx - prev
         is_arc = np.isfinite(centre[:, 0])
@@ -259,11 +263,26 @@ def moves_with_arcs(q, starts, th_um, arc_vals, tolerance_mm, arc_span):
         ijs.append(ij)
         ths.append(mth)
         lens.append(ln)
+        flows.append(fl[e_idx - 1])
         firsts.append(n_moves)
         n_moves += len(e_idx)
     return {"end": np.concatenate(ends), "kind": np.concatenate(kinds),
             "ij": np.concatenate(ijs), "th": np.concatenate(ths), "len": np.concatenate(lens),
-            "first": np.asarray(firsts, np.int64), "start": q[starts[:-1]]}
+            "flow": np.concatenate(flows), "first": np.asarray(firsts, np.int64),
+            "start": q[starts[:-1]]}
+
+
+def _fit_by_flow(points, values, flow, tolerance_mm, arc_span):
+    """:func:`fit_arcs` of one trace, each run of segments of one ``flow`` alone."""
+    cut = np.flatnonzero(flow[1:] != flow[:-1]) + 1
+    if not len(cut):
+        return fit_arcs(points, values, tolerance_mm, arc_span)
+    bounds = np.concatenate([[0], cut, [len(flow)]])
+    parts = [(lo, fit_arcs(points[lo:hi + 1], values[lo:hi], tolerance_mm, arc_span))
+             for lo, hi in zip(bounds[:-1].tolist(), bounds[1:].tolist())]
+    return (np.concatenate([lo + e for lo, (e, _, _) in parts]),
+            np.concatenate([c for _, (_, c, _) in parts]),
+            np.concatenate([w for _, (_, _, w) in parts]))
 
 
 def arc_length(start_um, end_um, ij_um, ccw):

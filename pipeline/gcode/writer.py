@@ -232,7 +232,7 @@ def thickness_for_sigma(sigmas, settings):
 
 
 def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=None,
-                upper=None):
+                upper=None, dry=None):
     """Write thickness-varying G-code for tool-path traces (paper 6.4).
 
     Parameters
@@ -252,10 +252,13 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
         A bilayer per segment: the lower half of the layers shrinks by ``sigma +
         delta / 2``, the upper half by ``sigma - delta / 2`` (a middle layer by
         ``sigma``), so the sheet curls away from its lower side where delta > 0.
-    upper : (traces, sigmas, deltas), optional
+    upper : (traces, sigmas, deltas[, dry]), optional
         Paths of their own for the upper half of the layers (crossed layer groups), with
         the shrink and bilayer of the triangles they cross; ``traces`` then print the
         lower half (and a middle layer).
+    dry : list of (k_i - 1,) bool, optional
+        Segments moved without extruding (hops over printed paths,
+        :mod:`pipeline.paths.dry`): at the layer's height, no E, no retraction.
 
     Returns
     -------
@@ -275,8 +278,8 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
     others = []
     if upper is not None:
         others.append((upper[0], _bilayer_layers(upper[1], upper[2], n),
-                       range(n - n // 2 + 1, n + 1), "upper"))
-    return write_laminate_gcode((traces, _bilayer_layers(sigmas, deltas, n)), others,
+                       range(n - n // 2 + 1, n + 1), "upper") + tuple(upper[3:4]))
+    return write_laminate_gcode((traces, _bilayer_layers(sigmas, deltas, n), dry), others,
                                 settings, out, name=name, center=center)
 
 
@@ -298,51 +301,58 @@ def _bilayer_layers(sigmas, deltas, layers):
 def write_laminate_gcode(along, others, profile, out, name="part", center=True):
     """Write G-code for a stack whose layers print several sets of paths.
 
-    along : (traces, layer_sigmas), traces a list of (k_i, 2) mm and layer_sigmas a
-    list of (k_i - 1, layers): each segment's shrink in every layer (of the triangle it
+    along : (traces, layer_sigmas[, dry]), traces a list of (k_i, 2) mm and layer_sigmas
+    a list of (k_i - 1, layers): each segment's shrink in every layer (of the triangle it
     crosses), so that each layer's Z over every path is the sum of the thicknesses below
-    it there; others : [(traces, layer_sigmas, layer numbers from 1, role), ...], each
-    set printing its layers (role ``upper`` or ``across`` names its count in the stats);
-    ``along`` prints the layers left. Returns the stats of :func:`write_gcode`, with
-    ``upper_traces`` / ``across_traces``.
+    it there, and dry a list of (k_i - 1,) bool, the segments moved without extruding
+    (None: none); others : [(traces, layer_sigmas, layer numbers from 1, role[, dry]),
+    ...], each set printing its layers (role ``upper`` or ``across`` names its count in
+    the stats); ``along`` prints the layers left. Returns the stats of
+    :func:`write_gcode`, with ``upper_traces`` / ``across_traces``.
     """
     settings = GcodeSettings.from_profile(profile)
-    main, clamped = _layer_set(*along, settings)
+    main, clamped = _layer_set(*along[:2], settings, *along[2:3])
     rest = []
-    for traces, layer_sigmas, layers, role in others:
-        done, more = _layer_set(traces, layer_sigmas, settings)
-        rest.append(done + (layers, role))
+    for traces, layer_sigmas, layers, role, *dry in others:
+        done, more = _layer_set(traces, layer_sigmas, settings, *dry)
+        rest.append(done[:3] + (layers, role, done[3]))
         clamped += more
     return write_thickness_gcode(main[0], main[1], settings, out, name=name, center=center,
                                  arc_values=main[2], arc_value_span=settings.merge_sigma,
-                                 clamped_segments=clamped, others=rest)
+                                 clamped_segments=clamped, others=rest, flow=main[3])
 
 
-def _layer_set(traces, layer_sigmas, settings):
+def _layer_set(traces, layer_sigmas, settings, dry=None):
     """One set of traces with a shrink per layer ready to write: ((traces, (k - 1, layers)
-    thicknesses, arc values), clamped segments)."""
+    thicknesses, arc values, flow: 1 extruded, 0 dry (``dry``)), clamped segments)."""
     if len(traces) != len(layer_sigmas):
         raise PlanError("%d traces but %d shrink arrays" % (len(traces), len(layer_sigmas)),
                         code="gcode.bad_input", fix="give one shrink array per trace")
     layers = settings.layers
+    # The flow rides with the shrink as one more value: chords never merge across a
+    # change of it (its buckets are far apart).
     values = [np.asarray(v, dtype=float).reshape(-1, layers) for v in layer_sigmas]
+    flows = ([np.ones(len(v)) for v in values] if dry is None
+             else [1.0 - np.asarray(d, float).reshape(-1) for d in dry])
+    values = [np.column_stack([v, f]) for v, f in zip(values, flows)]
     traces, values = merge_chords(traces, values, settings.chord_tolerance_mm,
                                   settings.merge_sigma)
     parts = np.cumsum([len(v) for v in values])[:-1]
-    per_seg = np.concatenate(values + [np.zeros((0, layers))])
+    both = np.concatenate(values + [np.zeros((0, layers + 1))])
+    per_seg, flow = both[:, :layers], both[:, layers]
     theta, clamped = thickness_for_sigma(per_seg.ravel(), settings)
     theta = theta.reshape(-1, layers)
     if np.all(theta == theta[:, :1]):
         # Equal layers: one column, each layer's Z its number times the thickness (the
         # paper's), and its moves' text written once for all layers.
         theta = theta[:, :1]
-    return ((traces, np.split(theta, parts), np.split(per_seg.mean(axis=1), parts)),
-            int(clamped.reshape(-1, layers).any(axis=1).sum()))
+    return ((traces, np.split(theta, parts), np.split(per_seg.mean(axis=1), parts),
+             np.split(flow, parts)), int(clamped.reshape(-1, layers).any(axis=1).sum()))
 
 
 def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=True,
                           labels=None, arc_values=None, arc_value_span=0.0,
-                          clamped_segments=0, header_extra=(), others=()):
+                          clamped_segments=0, header_extra=(), others=(), flow=None):
     """Write G-code for traces with a given layer thickness per segment.
 
     ``write_gcode`` without the shrink curve (calibration prints thicknesses
@@ -350,9 +360,10 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     (k - 1, layers) for a thickness per layer; each layer's Z is then the sum of
     the thicknesses below it. ``labels`` (one str per trace, or None) become ``;`` comment
     lines before each trace; ``arc_values`` (per segment, default the
-    thickness) may span at most ``arc_value_span`` inside one arc. Each of ``others``
-    (traces, thicknesses, arc values, layer numbers from 1, role:
-    ``upper`` or ``across``) prints its layers; ``traces`` print the layers left.
+    thickness) may span at most ``arc_value_span`` inside one arc; ``flow`` (per trace,
+    (k - 1,): 1 extruded, 0 dry; default all 1) scales each segment's E. Each of
+    ``others`` (traces, thicknesses, arc values, layer numbers from 1, role: ``upper`` or
+    ``across``[, flow]) prints its layers; ``traces`` print the layers left.
     See :func:`write_gcode` for the other parameters and the returned stats.
     """
     settings = GcodeSettings.from_profile(settings)
@@ -361,10 +372,10 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     # Each other set prints its own layers; the traces given first print the rest.
     taken = {int(k) for o in others for k in o[3]}
     sets = [(traces, thetas_mm, labels, arc_values,
-             _runs([k for k in range(1, n + 1) if k not in taken]), "lower")]
-    sets += [(tr, th, None, arc, _runs(sorted(int(k) for k in ks)), role)
-             for tr, th, arc, ks, role in others]
-    for tr, th, _, _, _, _ in sets:
+             _runs([k for k in range(1, n + 1) if k not in taken]), "lower", flow)]
+    sets += [(tr, th, None, arc, _runs(sorted(int(k) for k in ks)), role, (fl or [None])[0])
+             for tr, th, arc, ks, role, *fl in others]
+    for tr, th, _, _, _, _, _ in sets:
         if len(tr) != len(th):
             raise PlanError("%d traces but %d thickness arrays" % (len(tr), len(th)),
                             code="gcode.bad_input", fix="give one thickness array per trace")
@@ -372,9 +383,9 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
                                 center=center)
     _check_bed(over, settings.bed_mm)
     groups = []
-    for tr, th, lab, arc, spans, role in sets:
+    for tr, th, lab, arc, spans, role, fl in sets:
         mv, q, starts, th_um, lab = _layer_moves(tr, th, settings, offset, lab, arc,
-                                                 arc_value_span)
+                                                 arc_value_span, fl)
         for span in spans:
             g = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0],
                       last=span[1], labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0,
@@ -407,16 +418,19 @@ def _runs(layers):
     return runs
 
 
-def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_value_span):
+def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_value_span,
+                 flow=None):
     """One layer's moves: traces placed on the bed (shifted by ``offset`` mm), quantised,
     thickness in whole um, runs of chords fitted by arcs. Returns ``(mv, q, starts, th_um,
     labels)`` (see :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um
     (segments, K) int, K = 1 for equal layers, else one column per layer; labels of kept
-    traces)."""
+    traces); ``flow`` as :func:`write_thickness_gcode`'s."""
     if labels is not None:
         labels = [labels[i] for i in range(len(traces))]
     columns = _layer_columns(thetas_mm, settings.layers)
-    arrays = columns + ([arc_values] if arc_values is not None else [])
+    arrays = columns + [flow if flow is not None else [np.ones(max(len(t) - 1, 0))
+                                                       for t in traces]]
+    arrays += [arc_values] if arc_values is not None else []
     q, starts, vals, kept = _prepare(traces, arrays, offset)
     if labels is not None:
         labels = [labels[i] for i in kept]
@@ -424,13 +438,15 @@ def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_va
     hi_um = int(math.floor(settings.thickness_max_mm * 1000 + 1e-6))
     k = len(columns)
     th_um = np.clip(np.rint(np.stack(vals[:k], axis=1) * 1000.0), lo_um, hi_um).astype(np.int64)
-    arc_vals = vals[k] if arc_values is not None else th_um.mean(axis=1) / 1000.0
+    seg_flow = vals[k]
+    arc_vals = vals[k + 1] if arc_values is not None else th_um.mean(axis=1) / 1000.0
     top_um = int(stack_height(th_um, settings.layers).max()) + int(round(settings.z_hop_mm * 1000))
     if top_um > settings.max_z_mm * 1000:
         raise PlanError("the part needs %.3f mm of Z but the printer has %g mm"
                         % (top_um / 1000, settings.max_z_mm), code="gcode.too_tall",
                         fix="use fewer layers or thinner layers")
-    mv = moves_with_arcs(q, starts, th_um, arc_vals, settings.arc_tolerance_mm, arc_value_span)
+    mv = moves_with_arcs(q, starts, th_um, arc_vals, settings.arc_tolerance_mm, arc_value_span,
+                         seg_flow)
     return mv, q, starts, th_um, labels
 
 

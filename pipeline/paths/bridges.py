@@ -51,7 +51,7 @@ def bridge_rings(chains, pw):
     if not cuts:
         return chains, np.zeros((0, 2, 2))
     pieces, joins = _cut_apart(chains, paths, cuts)
-    merged, rungs = merge_joined(pieces, joins)
+    merged, rungs = merge_joined(pieces, joins, hop=None)
     return merged, rungs
 
 

@@ -23,6 +23,7 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
 from pipeline.geometry import boundary_loops, hat_gradients, unique_edges
+from pipeline.paths.links import HOP
 from pipeline.paths.stats import path_metrics
 
 
@@ -34,12 +35,15 @@ class Toolpaths:
     sigma : list of (k_i - 1,) float, shrink ratio per segment
     chains : int, number of loops and arcs before chaining
     info : dict, the report's ``toolpath`` section
+    dry : list of (k_i - 1,) bool, the segments moved without extruding (hops over
+        printed paths, :mod:`pipeline.paths.dry`), or None: none
     """
 
     traces: list
     sigma: list
     chains: int = 0
     info: dict = field(default_factory=dict)
+    dry: list = None
 
 
 def path_field(xy, faces, level, path_width_mm, loop=None):
@@ -231,10 +235,12 @@ def merge_collinear(points, sigma, angle_deg, sigma_tol):
     # Length-weighted mean sigma per run, from prefix sums.
     ends = np.asarray(keep)
     cw = np.concatenate([[0.0], np.cumsum(seg_len)])
-    cws = np.concatenate([[0.0], np.cumsum(seg_len * sigma)])
+    # A hop's unknown shrink (HOP) is a run of its own, and must not leak into the sums.
+    hop = np.isnan(sigma)
+    cws = np.concatenate([[0.0], np.cumsum(seg_len * np.where(hop, 0.0, sigma))])
     w = cw[ends[1:]] - cw[ends[:-1]]
     out_sigma = (cws[ends[1:]] - cws[ends[:-1]]) / np.maximum(w, 1e-12)
-    return points[keep], out_sigma
+    return points[keep], np.where(hop[ends[:-1]], np.nan, out_sigma)
 
 
 def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
@@ -281,10 +287,24 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
     outline = _outline_polygon(xy, loop)
     footprint = outline.buffer(0.25 * pw)
     shapely.prepare(footprint)
-    traces, tsig, hops = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
-                                       merge_sigma, footprint)
-    info = path_metrics(traces, tsig, raw, xy, faces, level, u, outline, pw, hops=hops)
-    return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
+    traces, tsig, _ = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
+                                    merge_sigma, footprint)
+    return finished(traces, tsig, raw, xy, faces, level, u, outline, pw, len(chains))
+
+
+def finished(traces, tsig, raw, xy, faces, level, u, outline, pw, chains, samples=None):
+    """:class:`Toolpaths` of ordered ``traces`` whose joins are still to be split into
+    extruded and dry stretches (:func:`pipeline.paths.dry.finish`), with the report's
+    figures (:func:`pipeline.paths.stats.path_metrics`; ``samples`` as it takes them)."""
+    from pipeline.paths.dry import dry_figures, finish
+    from pipeline.paths.links import path_samples
+    if samples is None:
+        samples = path_samples([p for p, _ in raw], pw)
+    traces, tsig, dry, hops = finish(traces, tsig, *samples, pw)
+    info = path_metrics(traces, tsig, raw, xy, faces, level, u, outline, pw, hops=hops,
+                        samples=samples)
+    info.update(dry_figures(traces, dry))
+    return Toolpaths(traces=traces, sigma=tsig, chains=chains, info=info, dry=dry)
 
 
 def _nesting(chains, levels):
@@ -315,7 +335,8 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     edge at a slant end further apart than a path width: a hop of up to three
     link lengths still joins them where it runs inside the sheet (along its edge).
 
-    Returns (traces, sigma per segment, hops: (h, 2, 2) mm, the extruded joins).
+    Returns (traces, sigma per segment, ``HOP`` at the hops: see
+    :mod:`pipeline.paths.dry`, hops: (h, 2, 2) mm).
     """
     import shapely
 
@@ -350,10 +371,9 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
             dist <= 3 * link_mm and not closed and footprint.contains(
                 shapely.LineString([cur_p[-1], p[0]]))))
         if linked:
-            hop = 0.5 * (cur_s[-1] + sg[0]) if len(cur_s) and len(sg) else float(sg[0])
             hops.append((cur_p[-1], p[0]))
             cur_p = np.vstack([cur_p, p])
-            cur_s = np.concatenate([cur_s, [hop], sg])
+            cur_s = np.concatenate([cur_s, [HOP], sg])
         else:
             if cur_p is not None:
                 traces.append(cur_p)

@@ -33,6 +33,10 @@ AUGMENT_DEPTH = 8
 # it from that end are the hop's own; beyond, a hop within reach of them runs back over
 # its own path, which prints it twice as surely as running over a third one.
 OWN_END_WIDTHS = 1.0
+# The shrink a join's segment carries until :func:`pipeline.paths.dry.finish` gives it
+# the mean of its neighbours' and splits it into extruded and dry stretches: unknown, so
+# no stage merges it into the segments beside it.
+HOP = np.nan
 
 
 def path_samples(paths, pw):
@@ -59,9 +63,18 @@ def over_others(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from
     them from the joined end (the hop runs back over its own path). A hop found to run
     over others for more than ``limit`` mm is not measured further: its figure is then
     only some length above ``limit``."""
+    hop, bad, seg = over_mask(a, b, end_a, end_b, samples, label, tree, pw, limit, from_end)
+    return np.bincount(hop[bad], minlength=len(a)) * seg
+
+
+def over_mask(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from_end=None):
+    """:func:`over_others` point by point: each hop is sampled at ``n`` points (the
+    middles of ``n`` equal steps of at most a quarter path width). Returns (the hop of
+    each sample (N,) int, hop by hop in order, whether it lies over another path (N,)
+    bool, each hop's step (h,) mm)."""
     h = len(a)
     if h == 0:
-        return np.zeros(0)
+        return np.zeros(0, np.int64), np.zeros(0, bool), np.zeros(0)
     length = np.linalg.norm(b - a, axis=1)
     n = np.maximum(np.ceil(length / (pw / 4)).astype(np.int64), 1)
     # Thousands of candidate hops on a real tile: their sample points and neighbour
@@ -69,9 +82,10 @@ def over_others(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from
     cut = np.searchsorted(np.cumsum(n), np.arange(_CHUNK_POINTS, n.sum(), _CHUNK_POINTS))
     cut = np.unique(cut[(cut > 0) & (cut < h)])
     if len(cut):
-        return np.concatenate([over_others(a[p], b[p], end_a[p], end_b[p], samples, label,
-                                           tree, pw, limit, from_end)
-                               for p in np.split(np.arange(h), cut)])
+        parts = [(p[0], over_mask(a[p], b[p], end_a[p], end_b[p], samples, label, tree, pw,
+                                  limit, from_end)) for p in np.split(np.arange(h), cut)]
+        return (np.concatenate([first + m[0] for first, m in parts]),
+                np.concatenate([m[1] for _, m in parts]), np.concatenate([m[2] for _, m in parts]))
     hop = np.repeat(np.arange(h), n)
     step = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
     t = (step + 0.5) / n[hop]
@@ -94,14 +108,16 @@ def over_others(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from
         bad[ask[found]] = True
         _spread(bad, ask[found], 0.5 * pw - delta[found], seg[hop[ask[found]]], step, n, hop)
         count = np.bincount(hop[bad], minlength=h)
-    return count * seg
+    return hop, bad, seg
 
 
 def _spread(bad, at, room, seg, step, n, hop):
     """Mark the samples of a hop that lie closer than ``room`` (mm) to the bad samples
     ``at`` (each within reach of another path's sample, by ``room`` less than reach):
     the same path's sample lies within reach of them."""
-    for j in range(1, int(np.ceil((room / np.maximum(seg, 1e-12)).max(initial=0))) + 1):
+    # No further than a hop's own samples: a hop of no length has a step of none.
+    reach = min(np.ceil((room / np.maximum(seg, 1e-12)).max(initial=0)), n.max(initial=0))
+    for j in range(1, int(reach) + 1):
         near = j * seg < room - 1e-9
         if not near.any():
             break
@@ -371,10 +387,12 @@ def _pieces(n_chains):
     return parent, root
 
 
-def merge_joined(chains, joins):
+def merge_joined(chains, joins, hop=HOP):
     """The chains with the joined ones run together: list of ((k, 2), (k - 1,), closed),
-    each hop carrying the mean sigma of the two segments it joins (a closed run's last
-    sigma is that of its closing hop), and the hops as (h, 2, 2) mm."""
+    each hop carrying the shrink ``hop`` (``HOP``: a hop's, settled when the traces are
+    finished; None: the mean of the segments either side, for joins printed where a path
+    was) (a closed run's last segment is its closing hop), and the hops as (h, 2, 2)
+    mm."""
     partner = {}
     for x, y in joins.tolist():
         partner[x], partner[y] = y, x
@@ -394,7 +412,7 @@ def merge_joined(chains, joins):
                 p, s = p[::-1], s[::-1]
             if pts:
                 hops.append((pts[-1][-1], p[0]))
-                sig.append([_mean_end(sig[-1], s)])
+                sig.append([_mean_end(sig[-1], s) if hop is None else hop])
             pts.append(p)
             sig.append(np.asarray(s, float))
             leave = end ^ 1
@@ -405,13 +423,13 @@ def merge_joined(chains, joins):
         ring = leave in partner                   # back at the first piece
         if ring:
             hops.append((pts[-1][-1], pts[0][0]))
-            sig.append([_mean_end(sig[-1], sig[0])])
+            sig.append([_mean_end(sig[-1], sig[0]) if hop is None else hop])
         out.append((np.vstack(pts), np.concatenate(sig), chains[c0][2] or ring))
     return out, np.asarray(hops, float).reshape(-1, 2, 2)
 
 
 def _mean_end(before, after):
-    """Sigma of a hop: the mean of the segments either side of it."""
-    if len(before) and len(after):
-        return 0.5 * (before[-1] + after[0])
-    return before[-1] if len(before) else (after[0] if len(after) else 0.0)
+    """Shrink of a join printed where a path was: the mean of the segments either side
+    of it (those known)."""
+    ends = [v for v in (before[-1:], after[:1]) if len(v) and np.isfinite(v[0])]
+    return float(np.mean(ends)) if ends else HOP

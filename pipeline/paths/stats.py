@@ -115,25 +115,23 @@ def nearest_other(samples, label, tree, at, reach, k=16):
 
 
 def hop_figures(hops, samples, label, tree, pw):
-    """``hop_mm``: the extruded length of the hops that join paths inside traces,
+    """``hop_mm``: the length of the hops that join paths inside traces,
     ``hop_overprint_mm``: how much of it runs over a third path (its centre line within
     half a path width of a path other than the two it joins), and
     ``hop_overprint_own_mm``: how much more runs back over its own two paths, away from
     the ends it joins them at (:data:`pipeline.paths.links.OWN_END_WIDTHS`); coverage
-    and overlap, taken over the paths alone, see neither.
+    and overlap, taken over the paths alone, see neither. Most of what runs over paths
+    moves dry (:mod:`pipeline.paths.dry`: ``dry_mm``).
 
     hops : (h, 2, 2) mm; samples, label, tree : points along the paths, the path of each
     and their KD-tree."""
-    from pipeline.paths.links import end_distances, over_others
+    from pipeline.paths.dry import joined_ends
+    from pipeline.paths.links import over_others
 
     hops = np.asarray(hops, float).reshape(-1, 2, 2)
     if not len(hops):
         return {"hop_mm": 0.0, "hop_overprint_mm": 0.0, "hop_overprint_own_mm": 0.0}
-    # The joined paths' ends: the nearest sample to each end of the hop (a path's end
-    # point), and whichever end of its path that sample lies nearer.
-    from_end = end_distances(samples, label)
-    _, at = tree.query(hops.reshape(-1, 2))
-    end = (2 * label[at] + (from_end[at, 1] < from_end[at, 0])).reshape(-1, 2)
+    end, from_end = joined_ends(hops, samples, label, tree)
     every = over_others(hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label, tree,
                         pw, from_end=from_end)
     # Over a third path is part of that: only the hops over some path are asked again.

@@ -377,13 +377,12 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     paths turn away from the isolines (``isoline_angle_deg``, as the isoline method's
     report does). ``sheet``: as :func:`plan_stripes`'."""
     import shapely
-    from pipeline.paths.isoline import (Toolpaths, _order_traces, _outline_polygon,
-                                        boundary_loop)
+    from pipeline.paths.isoline import _order_traces, _outline_polygon, boundary_loop, finished
     from pipeline.paths.bridges import bridge_rings
     from pipeline.paths.ends import retract_ends
     from pipeline.paths.rims import join_at_rim, printed_samples
     from pipeline.paths.links import join_ends, merge_joined, path_samples
-    from pipeline.paths.stats import _weighted_percentiles, path_metrics
+    from pipeline.paths.stats import _weighted_percentiles
     xy = np.asarray(xy, dtype=float)
     drawn = plan_stripes(xy, faces, direction, sigma, width_mm, refine, sheet)
     # Each segment's triangle rides along with its shrink, through the ends cut back.
@@ -404,17 +403,17 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     samples, label, tree = path_samples([p for p, _ in raw], width_mm)
     joins = join_ends(chains, width_mm, join_factor * width_mm, footprint, samples, label, tree,
                       over_mm=over_factor * width_mm)
-    joined, join_hops = merge_joined(chains, joins)
+    joined, _ = merge_joined(chains, joins)
     joined, rungs = bridge_rings(joined, width_mm)
-    joined, rim_hops, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor,
+    joined, _, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor,
                                           printed=(samples, tree))
     # The tails left out print nothing: the figures are those of the paths printed.
     samples, label, tree = printed_samples(samples, label, tree, tails, width_mm)
-    traces, tsig, hops = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
-                                       merge_angle_deg, merge_sigma, footprint)
-    info = path_metrics(traces, tsig, raw, xy, faces, None, None, outline, width_mm,
-                        hops=np.concatenate([join_hops, rim_hops, hops]),
-                        samples=(samples, label, tree))
+    traces, tsig, _ = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
+                                    merge_angle_deg, merge_sigma, footprint)
+    paths = finished(traces, tsig, raw, xy, faces, None, None, outline, width_mm, len(chains),
+                     samples=(samples, label, tree))
+    info = paths.info
     fields = {"direction_angle_deg": direction}
     if level is not None:
         from pipeline.layout.curvature import isoline_directions
@@ -431,4 +430,4 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["ring_bridges"] = len(rungs) // 2
     info["rim_tails"] = len(tails)
     info["rim_tail_mm"] = float(sum(polyline_length(t) for t in tails))
-    return Toolpaths(traces=traces, sigma=tsig, chains=len(chains), info=info)
+    return paths

@@ -23,6 +23,7 @@ __all__ = ["colormap", "stress_image", "preview_image", "toolpath_image", "monta
 
 START_COLOR = (40, 185, 80)
 TRAVEL_COLOR = (110, 110, 118)
+DRY_COLOR = (25, 25, 25)
 
 
 class _Plan:
@@ -222,8 +223,9 @@ def _as_segments(paths):
 
 
 def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_per_mm=None,
-                   max_px=2000, title=""):
-    """Tool paths coloured by shrink ratio, travel moves dashed, trace starts marked.
+                   max_px=2000, title="", dry=None):
+    """Tool paths coloured by shrink ratio, travel moves dashed, dry moves dotted, trace
+    starts marked.
 
     Parameters
     ----------
@@ -237,6 +239,8 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
         Paths are drawn at 70 % of this width so neighbours stay distinguishable.
     travel : list of (k, 2) float or (t, 2, 2) float, mm, optional
         Non-printing moves (from, to).
+    dry : list of (k_i - 1,) bool, optional
+        Segments of the traces moved without extruding (hops over printed paths).
     px_per_mm, max_px, title : as in :func:`stress_image`.
 
     Returns
@@ -246,6 +250,10 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     traces = [np.asarray(t, dtype=np.float64)[:, :2] for t in traces]
     p0, p1 = _as_segments(traces)
     sig = np.concatenate([np.asarray(s, float).reshape(-1) for s in sigma]) if len(sigma) else np.zeros(0)
+    wet = (~np.concatenate([np.asarray(d, bool).reshape(-1) for d in dry]) if dry and len(sig)
+           else np.ones(len(sig), bool))
+    d0, d1 = p0[~wet], p1[~wet]
+    p0, p1, sig = p0[wet], p1[wet], sig[wet]
     t0, t1 = _as_segments(travel)
     pts = np.concatenate([p0, p1, t0, t1]) if len(p0) + len(t0) else np.zeros((1, 2))
     lo, hi = pts.min(0), pts.max(0)
@@ -260,6 +268,9 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     if len(t0):
         q0, q1, _ = dash_segments(plan.px(t0), plan.px(t1), 6.0, 4.0)
         draw_segments(canvas, q0, q1, TRAVEL_COLOR, 1.2)
+    if len(d0):
+        q0, q1, _ = dash_segments(plan.px(d0), plan.px(d1), 2.0, 2.0)
+        draw_segments(canvas, q0, q1, DRY_COLOR, max(1.5, 0.3 * lw))
     starts = np.array([t[0] for t in traces if len(t)]).reshape(-1, 2)
     d = max(11.0, 2.5 * lw) if len(traces) <= 40 else max(7.0, 1.5 * lw)  # many: keep them small
     sp = plan.px(starts)
@@ -283,6 +294,8 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
     y = _invalid_legend(fig, lx, yb + fs, texts, fs)
     y = swatch(fig, lx, y, START_COLOR, "trace start (numbered)", fs, shape="dot")
     y = swatch(fig, lx, y, TRAVEL_COLOR, "travel move", fs, shape="dash")
+    if len(d0):
+        y = swatch(fig, lx, y, DRY_COLOR, "dry move (over printed paths)", fs, shape="dash")
     stat_lines(fig, lx, y + fs // 2, [f"path width {fmt_number(path_width_mm, 0.01)} mm",
                                        "(drawn at 70 %)"], fs)
     scale_bar(fig, bxy[0] + 16, fy + fs, plan.s, min(0.3 * plan.w, 600), fs)
