@@ -391,6 +391,7 @@ def _free_sheet(result, hf, profile, stage, timing):
         return stripe_toolpaths(result.xy_bed, mesh.faces, direction, shrink,
                                 profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg,
                                 merge_sigma=tp.merge_sigma, level=mesh.vertex_level,
+                                join_factor=tp.hop_reach_widths,
                                 over_factor=tp.hop_over_widths, sheet=sheet,
                                 rim_tail_factor=tp.rim_tail_widths)
     lower, upper = result.curvature.group_directions(flat.direction)

@@ -103,25 +103,28 @@ def test_the_isoline_method_says_so(tmp_path):
 
 
 def test_the_profile_sets_how_far_a_hop_may_print_over_paths(tmp_path, monkeypatch):
-    """`toolpath.hop_over_widths` is the hop budget every stripe set of the plan joins by,
-    `toolpath.rim_tail_widths` the longest tail each leaves out at the edge."""
+    """`toolpath.hop_reach_widths` and `toolpath.hop_over_widths` are the hop budget every
+    stripe set of the plan joins by, `toolpath.rim_tail_widths` the longest tail each
+    leaves out at the edge."""
     from pipeline import plan as plan_module
     hf = shapes.hyperbolic_paraboloid(diameter_mm=40.0, height_mm=6.0)
     np.save(tmp_path / "s.npy", hf.z)
     (tmp_path / "s.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
     prof = load_profile("generic-0.5mm")
     prof = dataclasses.replace(prof, toolpath=dataclasses.replace(prof.toolpath,
+                                                                  hop_reach_widths=6.0,
                                                                   hop_over_widths=1.5,
                                                                   rim_tail_widths=7.0))
     asked = []
     real = plan_module.stripe_toolpaths
 
     def spy(*args, **kwargs):
-        asked.append((kwargs.get("over_factor"), kwargs.get("rim_tail_factor")))
+        asked.append((kwargs.get("join_factor"), kwargs.get("over_factor"),
+                      kwargs.get("rim_tail_factor")))
         return real(*args, **kwargs)
     monkeypatch.setattr(plan_module, "stripe_toolpaths", spy)
     planner.run(tmp_path / "s.npy", prof, tmp_path / "out", method="free")
-    assert asked and set(asked) == {(1.5, 7.0)}
+    assert asked and set(asked) == {(6.0, 1.5, 7.0)}
 
 
 def test_hops_over_printed_paths_move_dry_in_the_gcode(saddle_plan):

@@ -26,12 +26,13 @@ from pipeline.paths.sheet import Sheet
 
 
 # Stripe pieces whose ends lie up to this many path widths apart are joined into one
-# path where the hop prints over other paths for no more than OVER_FACTOR widths (the
-# profile's ``toolpath.hop_over_widths``). On the real tiles at 175 mm a reach of 9 left
-# 25-36 traces a layer, 8 left 32-44 and 10 26-35 in a tenth more time (three sets of
-# stripes 4.0-4.2, 3.8-4.2 and 4.1-4.7 s); the last stripe of a disk's rim needs 9.
-JOIN_FACTOR = 9.0
-OVER_FACTOR = 8.0
+# path where the hop runs over other paths for no more than OVER_FACTOR widths (the
+# profile's ``toolpath.hop_reach_widths`` and ``toolpath.hop_over_widths``); over them
+# it moves dry (:mod:`pipeline.paths.dry`). Lower layers, traces a layer at reach 9 and
+# 25: real tiles at 175 mm 33 and 6, 24 and 4; saddle 38 and 11; terrain tile 25 and 3;
+# the three sets of stripes of a real tile took as long (1.3-2.5 s a set either way).
+JOIN_FACTOR = 25.0
+OVER_FACTOR = 25.0
 # An end at the sheet's edge is joined to the path beside it by leaving out that path's
 # tail along the edge where the tail is no longer than this many path widths (the
 # profile's ``toolpath.rim_tail_widths``; see :mod:`pipeline.paths.rims`).

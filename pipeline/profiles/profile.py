@@ -148,13 +148,14 @@ class ToolpathParams:
     merge_sigma: float = _num(0.005, strict=False, hi=1.0)
     arc_tolerance_mm: float = _num(0.0, strict=False)
     chord_tolerance_mm: float = _num(0.02, strict=False, hi=1.0)
-    # How far a hop joining two stripe pieces may print over paths, in path widths
-    # (over third paths, and back over its own two away from their ends). On the real
-    # tiles at 175 mm the hops then print over paths for this share of the path length,
-    # leaving this many traces a layer: 2: 0.9-1.4 %, 196-258; 4: 1.4-2.2 %, 103-123;
-    # 6: 2.0-2.9 %, 39-53; 8: 2.4-3.2 %, 25-36. Before the run back over their own paths
-    # was counted, 2 left 165-191 at 2.6 %, counted alike.
-    hop_over_widths: float = _num(8.0, strict=False, hi=20.0)
+    # The longest hop joining two stripe pieces into one trace, in path widths, and how
+    # far it may run over printed paths (third ones, or back over its own two away from
+    # their ends); where it runs over them for two widths or more it moves dry. At 25
+    # widths (12 mm at 0.48 mm) a dry hop at print speed takes about as long as a
+    # retraction, a lift and a travel would. Lower layers on the real tiles at 175 mm,
+    # traces a layer: reach 9, over 8: 33 and 24; 15: 15 and 8; 25: 6 and 4; 40: 2.
+    hop_reach_widths: float = _num(25.0, strict=False, hi=100.0)
+    hop_over_widths: float = _num(25.0, strict=False, hi=100.0)
     # An end at the sheet's edge joins the path beside it, that path's tail along the
     # edge left out, where the tail is no longer than this many path widths (0: never).
     rim_tail_widths: float = _num(20.0, strict=False, hi=100.0)
