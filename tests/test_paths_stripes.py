@@ -268,11 +268,12 @@ def _off_centre(**options):
 
 def test_rings_beside_other_paths_are_bridged_into_them(monkeypatch):
     """Rings nest inside the arcs the sheet's edge cuts: bridged into the paths beside
-    them they need no trace of their own."""
+    them they need no trace of their own (with hops of four widths: longer ones join
+    this sheet's arcs into a trace or two either way)."""
     from pipeline.paths import bridges
-    bridged = _off_centre(rim_tail_factor=0.0)
+    bridged = _off_centre(rim_tail_factor=0.0, join_factor=4.0)
     monkeypatch.setattr(bridges, "bridge_rings", lambda chains, pw: (chains, np.zeros((0, 2, 2))))
-    alone = _off_centre(rim_tail_factor=0.0)
+    alone = _off_centre(rim_tail_factor=0.0, join_factor=4.0)
     assert bridged["ring_bridges"] > 20 and alone["ring_bridges"] == 0
     assert bridged["traces"] < alone["traces"]
     assert bridged["coverage"] == alone["coverage"]

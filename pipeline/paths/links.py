@@ -1,17 +1,17 @@
-"""Joining open paths end to end by short extruded hops that print over nothing.
+"""Joining open paths end to end by hops.
 
 Stripe paths stop where the stripes fork or the direction field turns over (the
 triangle there holds no path) and where they run into the sheet's edge, so a stripe
-plan has hundreds of pieces whose ends face another piece's end across a small gap.
-A hop is extruded like the paths it joins, so where its centre line comes within half
-a path width of another path it prints that path's bead twice; the same holds where it
-runs back over one of the two paths it joins, away from the end it leaves it at. A hop
-is only taken where that length stays within a budget (the fewer ends left, the more
-plastic printed twice) and the hop stays on the sheet. Among such hops the shortest
-are taken first, each end at most once (a greedy matching), which leaves fewer loose
-ends than walking from piece to nearest piece; then augmenting paths join more: a loose
-end takes over a join whose other end takes over another, and so on, until one reaches
-another loose end.
+plan has hundreds of pieces whose ends face another piece's end across the sheet. A
+hop is extruded like the paths it joins where it crosses bare sheet; where its centre
+line comes within half a path width of another path, or runs back over one of the two
+paths it joins away from the end it leaves it at, it would print that bead twice, and
+there it moves dry (:mod:`pipeline.paths.dry`). A hop is only taken where that run over
+paths stays within a budget and the hop stays on the sheet. Among such hops the
+shortest are taken first, each end at most once (a greedy matching), which leaves fewer
+loose ends than walking from piece to nearest piece; then augmenting paths join more: a
+loose end takes over a join whose other end takes over another, and so on, until one
+reaches another loose end.
 """
 
 import numpy as np
@@ -197,25 +197,25 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     known = np.full(len(a), np.nan)
     from_end = end_distances(samples, label)
 
-    def extra(k):
-        """Over-print cost of hops ``k``, inf where the hop may not be taken; each hop is
+    def over(k):
+        """How far hops ``k`` run over paths (inf where not on the sheet); each hop is
         measured once, whether the greedy matching or the augmenting paths ask first."""
         todo = k[np.isnan(known[k])]
         if len(todo):
-            over = over_others(a[todo], b[todo], ea[todo], eb[todo], samples, label, tree, pw,
-                               limit=over_mm, from_end=from_end)
-            known[todo] = np.where((over <= over_mm) & inside[todo], 4 * over, np.inf)
+            mm = over_others(a[todo], b[todo], ea[todo], eb[todo], samples, label, tree, pw,
+                             limit=over_mm, from_end=from_end)
+            known[todo] = np.where(inside[todo], mm, np.inf)
         return known[k]
 
     def allowed(k):
-        """Which of hops ``k`` may be taken: a hop no longer than the budget prints over
-        no more than its length, so only the longer ones are measured."""
+        """Which of hops ``k`` may be taken: a hop no longer than the budget runs over no
+        more than its length, so only the longer ones are measured."""
         ok = inside[k].copy()
         long_ = ok & (length[k] > over_mm)
-        ok[long_] = np.isfinite(extra(k[long_]))
+        ok[long_] = over(k[long_]) <= over_mm
         return ok
 
-    joins = _greedy(ea, eb, cost, len(chains), extra)
+    joins = _greedy(ea, eb, cost, len(chains), lambda k: np.where(allowed(k), 0.0, np.inf))
     return _augment(joins, ea, eb, cost, len(chains), allowed)
 
 
