@@ -373,7 +373,7 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     taken = {int(k) for o in others for k in o[3]}
     sets = [(traces, thetas_mm, labels, arc_values,
              _runs([k for k in range(1, n + 1) if k not in taken]), "lower", flow)]
-    sets += [(tr, th, None, arc, _runs(sorted(int(k) for k in ks)), role, (fl or [None])[0])
+    sets += [(tr, th, None, arc, _runs(sorted(int(k) for k in ks)), role, fl[0] if fl else None)
              for tr, th, arc, ks, role, *fl in others]
     for tr, th, _, _, _, _, _ in sets:
         if len(tr) != len(th):

@@ -12,13 +12,14 @@ does a short extruded stretch between two dry ones.
 
 The stages that join paths (:mod:`pipeline.paths.links`, :mod:`pipeline.paths.bridges`,
 :mod:`pipeline.paths.rims` and the ordering of traces) mark each join they make with
-the shrink :data:`pipeline.paths.links.HOP`: unknown until the traces are finished here, and never merged into a
-neighbouring segment on the way.
+the shrink :data:`pipeline.paths.links.HOP`: unknown until the traces are finished here,
+and never merged into a neighbouring segment on the way.
 """
 
 import numpy as np
 
 from pipeline.paths.links import end_distances, over_mask
+
 # Dry stretches shorter than this many path widths stay extruded (the flow does not
 # stop and start again within a few milliseconds), and extruded stretches shorter than
 # this between two dry ones go dry.
@@ -27,8 +28,8 @@ MIN_WET_WIDTHS = 2.0
 
 
 def finish(traces, tsig, samples, label, tree, pw):
-    """The traces with every join (its segment's shrink NaN, ``HOP``) given the mean shrink of
-    the segments either side and split into extruded and dry stretches.
+    """The traces with every join (its segment's shrink ``HOP``, NaN) given the mean
+    shrink of the segments either side and split into extruded and dry stretches.
 
     traces : list of (k, 2) mm; tsig : list of (k - 1,) shrink, ``HOP`` at the joins;
     samples, label, tree : points along the printed paths, the path of each and their

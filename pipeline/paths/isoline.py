@@ -287,8 +287,8 @@ def plan_toolpaths(xy, faces, level, printing_edges, sigma, path_width_mm,
     outline = _outline_polygon(xy, loop)
     footprint = outline.buffer(0.25 * pw)
     shapely.prepare(footprint)
-    traces, tsig, _ = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
-                                    merge_sigma, footprint)
+    traces, tsig = _order_traces(chains, children, pw * link_factor, merge_angle_deg,
+                                 merge_sigma, footprint)
     return finished(traces, tsig, raw, xy, faces, level, u, outline, pw, len(chains))
 
 
@@ -335,8 +335,8 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     edge at a slant end further apart than a path width: a hop of up to three
     link lengths still joins them where it runs inside the sheet (along its edge).
 
-    Returns (traces, sigma per segment, ``HOP`` at the hops: see
-    :mod:`pipeline.paths.dry`, hops: (h, 2, 2) mm).
+    Returns (traces, sigma per segment: ``HOP`` at the hops, see
+    :mod:`pipeline.paths.dry`).
     """
     import shapely
 
@@ -351,7 +351,7 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     index = np.concatenate(index)
     tree = cKDTree(entries)
     visited = np.zeros(len(chains), bool)
-    traces, tsig, hops = [], [], []
+    traces, tsig = [], []
     cur_p, cur_s = None, None
     # Start at the outermost path nearest the front-left corner.
     c0 = int(owner[np.argmin(entries[:, 0] + entries[:, 1])])
@@ -371,7 +371,6 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
             dist <= 3 * link_mm and not closed and footprint.contains(
                 shapely.LineString([cur_p[-1], p[0]]))))
         if linked:
-            hops.append((cur_p[-1], p[0]))
             cur_p = np.vstack([cur_p, p])
             cur_s = np.concatenate([cur_s, [HOP], sg])
         else:
@@ -391,7 +390,7 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     if cur_p is not None:
         traces.append(cur_p)
         tsig.append(cur_s)
-    return traces, tsig, np.asarray(hops, float).reshape(-1, 2, 2)
+    return traces, tsig
 
 
 def _nearest_in(chains, cands, at, ahead_mm=0.0):

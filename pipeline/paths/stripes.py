@@ -410,8 +410,8 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
                                           printed=(samples, tree))
     # The tails left out print nothing: the figures are those of the paths printed.
     samples, label, tree = printed_samples(samples, label, tree, tails, width_mm)
-    traces, tsig, _ = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
-                                    merge_angle_deg, merge_sigma, footprint)
+    traces, tsig = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
+                                 merge_angle_deg, merge_sigma, footprint)
     paths = finished(traces, tsig, raw, xy, faces, None, None, outline, width_mm, len(chains),
                      samples=(samples, label, tree))
     info = paths.info
