@@ -39,8 +39,8 @@ def _dry_length(trace, dry):
 
 def test_a_hop_along_a_printed_path_moves_dry():
     # The hop runs 6 mm at 0.2 mm from a printed path: closer than half a width.
-    traces, tsig, dry, hops = _finished(0.2, [_line((0.0, 0.0), (10.0, 0.0))])
-    assert len(hops) == 1
+    traces, tsig, dry, hops, over = _finished(0.2, [_line((0.0, 0.0), (10.0, 0.0))])
+    assert len(hops) == 1 and over == pytest.approx([6.0], abs=PW / 4)
     assert _dry_length(traces[0], dry[0]) == pytest.approx(6.0, abs=1e-9)
     # The dry stretch is the hop's own line, with the mean shrink of the paths it joins.
     assert np.all(np.isfinite(tsig[0])) and np.allclose(tsig[0][dry[0]], 0.25)
@@ -49,8 +49,8 @@ def test_a_hop_along_a_printed_path_moves_dry():
 
 
 def test_a_hop_over_bare_sheet_is_extruded():
-    traces, tsig, dry, hops = _finished(0.6, [_line((0.0, 0.0), (10.0, 0.0))])
-    assert len(hops) == 1 and not dry[0].any()
+    traces, tsig, dry, hops, over = _finished(0.6, [_line((0.0, 0.0), (10.0, 0.0))])
+    assert len(hops) == 1 and not dry[0].any() and over == pytest.approx([0.0])
     assert len(traces[0]) == 82 and np.nanmax(np.abs(tsig[0] - 0.25)) <= 0.05
 
 
@@ -60,7 +60,7 @@ def test_crossing_one_bead_is_too_short_to_stop_for():
     q = _line((0.0, 0.0), (10.0, 0.0))
     trace = np.vstack([a, b])
     sigma = np.concatenate([np.full(40, 0.2), [HOP], np.full(40, 0.2)])
-    traces, tsig, dry, _ = finish([trace, q], [sigma, np.full(40, 0.2)],
+    traces, tsig, dry, _, _ = finish([trace, q], [sigma, np.full(40, 0.2)],
                                   *path_samples([a, b, q], PW), PW)
     assert not dry[0].any() and np.allclose(tsig[0], 0.2)
 
@@ -69,10 +69,10 @@ def test_a_short_bare_gap_between_dry_stretches_moves_dry_too():
     # The printed path under the hop is broken by a gap of 0.6 mm (bare for about 0.1
     # mm of the hop): one dry stretch. A gap of 3 mm is printed: two.
     short = [_line((0.0, 0.0), (4.7, 0.0)), _line((5.3, 0.0), (10.0, 0.0))]
-    traces, _, dry, _ = _finished(0.2, short)
+    traces, _, dry, _, _ = _finished(0.2, short)
     assert dry_figures(traces, dry)["dry_stretches"] == 1
     assert _dry_length(traces[0], dry[0]) == pytest.approx(6.0, abs=1e-9)
     wide = [_line((0.0, 0.0), (3.5, 0.0)), _line((6.5, 0.0), (10.0, 0.0))]
-    traces, _, dry, _ = _finished(0.2, wide)
+    traces, _, dry, _, _ = _finished(0.2, wide)
     assert dry_figures(traces, dry)["dry_stretches"] == 2
     assert 6.0 - 3.0 - PW <= _dry_length(traces[0], dry[0]) < 6.0 - 2.0

@@ -36,16 +36,18 @@ def finish(traces, tsig, samples, label, tree, pw):
     KD-tree (:func:`pipeline.paths.links.path_samples`); pw : path width mm.
 
     Returns (traces, shrink per segment, dry per segment: list of (k' - 1,) bool, the
-    joins as (h, 2, 2) mm)."""
+    joins as (h, 2, 2) mm, how far each runs over paths (h,) mm, as
+    :func:`pipeline.paths.links.over_others` with its own two counted away from their
+    ends)."""
     hops, where = _joins(traces, tsig)
     tsig = [_filled(s) for s in tsig]
     dry = [np.zeros(len(s), bool) for s in tsig]
     if not len(hops) or not len(samples):
-        return traces, tsig, dry, hops
-    hop, flag, seg = _dry_samples(hops, samples, label, tree, pw)
+        return traces, tsig, dry, hops, np.zeros(len(hops))
+    hop, over, flag, seg = _dry_samples(hops, samples, label, tree, pw)
     parts = _stretches(hop, flag, len(hops))
     traces, tsig, dry = _split(traces, tsig, dry, hops, where, parts)
-    return traces, tsig, dry, hops
+    return traces, tsig, dry, hops, np.bincount(hop[over], minlength=len(hops)) * seg
 
 
 def _joins(traces, tsig):
@@ -83,13 +85,14 @@ def joined_ends(hops, samples, label, tree):
 
 def _dry_samples(hops, samples, label, tree, pw):
     """Each hop's samples (:func:`pipeline.paths.links.over_mask`) and whether each moves
-    dry, with the shortest stretches settled: (hop (N,), dry (N,) bool, step (h,) mm)."""
+    dry, with the shortest stretches settled: (hop (N,), over another path (N,) bool,
+    dry (N,) bool, step (h,) mm)."""
     end, from_end = joined_ends(hops, samples, label, tree)
     hop, over, seg = over_mask(hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label,
                                tree, pw, from_end=from_end)
     flag = _settle(hop, over, seg, MIN_DRY_WIDTHS * pw, inner=False)
     flag = ~_settle(hop, ~flag, seg, MIN_WET_WIDTHS * pw, inner=True)
-    return hop, flag, seg
+    return hop, over, flag, seg
 
 
 def _settle(hop, flag, seg, shortest, inner):

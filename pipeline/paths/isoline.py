@@ -300,9 +300,9 @@ def finished(traces, tsig, raw, xy, faces, level, u, outline, pw, chains, sample
     from pipeline.paths.links import path_samples
     if samples is None:
         samples = path_samples([p for p, _ in raw], pw)
-    traces, tsig, dry, hops = finish(traces, tsig, *samples, pw)
+    traces, tsig, dry, hops, over = finish(traces, tsig, *samples, pw)
     info = path_metrics(traces, tsig, raw, xy, faces, level, u, outline, pw, hops=hops,
-                        samples=samples)
+                        samples=samples, hop_over=over)
     info.update(dry_figures(traces, dry))
     return Toolpaths(traces=traces, sigma=tsig, chains=chains, info=info, dry=dry)
 

@@ -12,7 +12,8 @@ from scipy.spatial import cKDTree
 from pipeline.geometry import hat_gradients
 
 
-def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, samples=None):
+def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, samples=None,
+                 hop_over=None):
     """The report's ``toolpath`` section.
 
     Parameters
@@ -23,8 +24,9 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, sa
     level, u : (n,) float, isoline value and path index per vertex (None: paths not
         from isolines, no ``isoline_angle_deg``)
     poly : shapely polygon, the flat outline; pw : float, path width mm
-    hops : (h, 2, 2) float, mm, the extruded joins between the paths of ``raw`` inside
-        the traces (None: not known, no ``hop_mm``)
+    hops : (h, 2, 2) float, mm, the joins between the paths of ``raw`` inside the
+        traces (None: not known, no ``hop_mm``); hop_over : how far each runs over
+        paths, (h,) mm, where that is known (:func:`hop_figures`)
     samples : (points, path of each, KD-tree) along ``raw`` a quarter width apart, as
         :func:`pipeline.paths.links.path_samples` gives them (None: made here)
     """
@@ -48,7 +50,7 @@ def path_metrics(traces, tsig, raw, xy, faces, level, u, poly, pw, hops=None, sa
     spacing = _to_another(samples[probe], label[probe], label, tree, 3 * pw,
                           min(14, len(samples)))
     covered, twice = coverage_grid(samples, label, xy, poly, pw)
-    hop = {} if hops is None else hop_figures(hops, samples, label, tree, pw)
+    hop = {} if hops is None else hop_figures(hops, samples, label, tree, pw, hop_over)
     pct = np.percentile(spacing, [5, 50, 95]) if len(spacing) else [np.nan] * 3
     return {"traces": len(traces), "segments": int(seg_count), "length_mm": length,
             "travel_moves": max(len(traces) - 1, 0), "sharp_turns": sharp,
@@ -114,7 +116,7 @@ def nearest_other(samples, label, tree, at, reach, k=16):
     return j, near
 
 
-def hop_figures(hops, samples, label, tree, pw):
+def hop_figures(hops, samples, label, tree, pw, every=None):
     """``hop_mm``: the length of the hops that join paths inside traces,
     ``hop_overprint_mm``: how much of it runs over a third path (its centre line within
     half a path width of a path other than the two it joins), and
@@ -124,7 +126,8 @@ def hop_figures(hops, samples, label, tree, pw):
     moves dry (:mod:`pipeline.paths.dry`: ``dry_mm``).
 
     hops : (h, 2, 2) mm; samples, label, tree : points along the paths, the path of each
-    and their KD-tree."""
+    and their KD-tree; every : how far each hop runs over paths, its own two counted
+    (:func:`pipeline.paths.links.over_others` with ``from_end``), where already known."""
     from pipeline.paths.dry import joined_ends
     from pipeline.paths.links import over_others
 
@@ -132,8 +135,9 @@ def hop_figures(hops, samples, label, tree, pw):
     if not len(hops):
         return {"hop_mm": 0.0, "hop_overprint_mm": 0.0, "hop_overprint_own_mm": 0.0}
     end, from_end = joined_ends(hops, samples, label, tree)
-    every = over_others(hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label, tree,
-                        pw, from_end=from_end)
+    if every is None:
+        every = over_others(hops[:, 0], hops[:, 1], end[:, 0], end[:, 1], samples, label,
+                            tree, pw, from_end=from_end)
     # Over a third path is part of that: only the hops over some path are asked again.
     over = np.flatnonzero(every > 0)
     third = np.zeros(len(hops))
