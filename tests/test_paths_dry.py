@@ -76,3 +76,14 @@ def test_a_short_bare_gap_between_dry_stretches_moves_dry_too():
     traces, _, dry, _, _ = _finished(0.2, wide)
     assert dry_figures(traces, dry)["dry_stretches"] == 2
     assert 6.0 - 3.0 - PW <= _dry_length(traces[0], dry[0]) < 6.0 - 2.0
+
+
+def test_a_join_is_never_merged_into_the_segments_beside_it():
+    """Collinear segments of one shrink merge; a join's (``HOP``) stays a segment of its
+    own, and the shrink of the runs beside it stays known."""
+    from pipeline.paths.isoline import merge_collinear
+    p = _line((0.0, 0.0), (10.0, 0.0), n=11)
+    sigma = np.concatenate([np.full(4, 0.2), [HOP], np.full(5, 0.3)])
+    q, s = merge_collinear(p, sigma, 2.0, 0.005)
+    assert np.allclose(q[:, 0], [0.0, 4.0, 5.0, 10.0])
+    assert np.allclose(s[[0, 2]], [0.2, 0.3]) and np.isnan(s[1])
