@@ -29,8 +29,8 @@ from pipeline.paths.sheet import Sheet
 # path where the hop runs over other paths for no more than OVER_FACTOR widths (the
 # profile's ``toolpath.hop_reach_widths`` and ``toolpath.hop_over_widths``); over them
 # it moves dry (:mod:`pipeline.paths.dry`). Lower layers, traces a layer at reach 9 and
-# 25: real tiles at 175 mm 33 and 6, 24 and 4; saddle 38 and 11; terrain tile 25 and 3;
-# the three sets of stripes of a real tile took as long (1.3-2.5 s a set either way).
+# 25: real tiles at 175 mm 33 and 10, 24 and 6; saddle 38 and 8; terrain tile 25 and 7;
+# a stripe set of a real tile takes as long either way (1.3 s).
 JOIN_FACTOR = 25.0
 OVER_FACTOR = 25.0
 # An end at the sheet's edge is joined to the path beside it by leaving out that path's
