@@ -281,9 +281,9 @@ def test_rings_beside_other_paths_are_bridged_into_them(monkeypatch):
 
 def test_an_end_at_the_edge_joins_the_path_beside_it():
     """Where the paths graze the edge, an end there joins the path a width in, whose
-    tail along the edge is left out (and not counted as covered). Hops of nine widths
+    tail along the edge is left out (and not counted as covered). Hops of four widths
     leave ends at the edge that longer ones would join across the sheet."""
-    joined, kept = _off_centre(join_factor=9.0), _off_centre(join_factor=9.0, rim_tail_factor=0.0)
+    joined, kept = _off_centre(join_factor=4.0), _off_centre(join_factor=4.0, rim_tail_factor=0.0)
     assert joined["rim_tails"] >= 1 and kept["rim_tails"] == 0
     assert joined["traces"] < kept["traces"]
     bare = joined["rim_tail_mm"] * WIDTH / (np.pi * 30.0 ** 2)
