@@ -154,9 +154,9 @@ def test_a_hop_over_another_path_within_the_budget_is_taken():
     assert (1, 3) in {tuple(sorted(j)) for j in some.tolist()}
 
 
-def test_the_dear_hop_cost_is_asked_only_of_joins_still_possible_and_changes_nothing():
-    """Joins chosen with the over-print cost asked lazily are those chosen with it added
-    to every candidate up front, and far fewer candidates are asked."""
+def test_the_dear_hop_test_is_asked_only_of_joins_still_possible_and_changes_nothing():
+    """Joins chosen with the over-print test asked lazily are those chosen with it asked
+    of every candidate up front, and far fewer candidates are asked."""
     from pipeline.paths.links import _greedy
     rng = np.random.default_rng(1)
     n_chains, h = 300, 5000
@@ -165,20 +165,20 @@ def test_the_dear_hop_cost_is_asked_only_of_joins_still_possible_and_changes_not
     keep = ea // 2 != eb // 2
     ea, eb = ea[keep], eb[keep]
     cost = np.round(rng.uniform(0, 4, len(ea)), 1)         # ties, kept in order
-    add = np.where(rng.uniform(size=len(ea)) < 0.3, np.inf, np.round(rng.uniform(0, 2, len(ea)), 1))
+    good = rng.uniform(size=len(ea)) >= 0.3
     asked = []
 
-    def extra(k):
+    def allowed(k):
         asked.append(len(k))
-        return add[k]
+        return good[k]
 
-    lazy = _greedy(ea, eb, cost, extra)
-    # Every candidate's full cost up front, cheapest first (ties in order), as plainly
-    # as it can be written.
+    lazy = _greedy(ea, eb, cost, allowed)
+    # Every candidate asked up front, cheapest first (ties in order), as plainly as it
+    # can be written.
     used, upfront = set(), []
-    for k in np.argsort(cost + add, kind="stable"):
+    for k in np.argsort(cost, kind="stable"):
         x, y = int(ea[k]), int(eb[k])
-        if np.isfinite(add[k]) and x not in used and y not in used:
+        if good[k] and x not in used and y not in used:
             used.update((x, y))
             upfront.append((x, y))
     assert lazy.tolist() == [list(j) for j in upfront] and len(lazy) > 100

@@ -215,7 +215,7 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
         ok[long_] = over(k[long_]) <= over_mm
         return ok
 
-    joins = _greedy(ea, eb, cost, lambda k: np.where(allowed(k), 0.0, np.inf))
+    joins = _greedy(ea, eb, cost, allowed)
     return _augment(joins, ea, eb, cost, allowed)
 
 
@@ -241,49 +241,27 @@ def _outward(chains, e):
     return d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
 
 
-def _greedy(ea, eb, cost, extra=None):
+def _greedy(ea, eb, cost, allowed=None):
     """Cheapest joins first, each end once. A join may close a run of pieces into a ring:
     the ring is then bridged into a path beside it (:mod:`pipeline.paths.bridges`).
 
-    ``extra(k)`` adds to ``cost`` of joins ``k`` (inf: not a join); it is dear (the
-    over-print test), so it is asked only of joins whose ends are still free when their
-    cost without it comes up, a batch at a time: most candidates lose an end to a
-    cheaper join first. The answer is the one of adding it to every join up front."""
-    import heapq
-
-    def free(k):
-        return xs[k] not in used and ys[k] not in used
-
+    ``allowed(k)`` says which of joins ``k`` may be taken; it is dear (the over-print
+    test), so it is asked only of joins whose ends are still free when they come up, a
+    batch at a time: most candidates lose an end to a cheaper join first. The answer is
+    the one of asking it of every join up front."""
     xs, ys = ea.tolist(), eb.tolist()
     order = np.argsort(cost, kind="stable").tolist()
-    base = cost.tolist()
-    used = set()
-    out, heap = [], []
-    nxt, batch = 0, 64
-    while True:
-        # Known costs at or below the next unknown one's lower bound go first; ties keep
-        # the candidates' order, as a stable sort of the full costs would.
-        if heap and (nxt >= len(order) or heap[0] <= (base[order[nxt]], order[nxt])):
-            _, k = heapq.heappop(heap)
-            if free(k):
+    used, out = set(), []
+    at, batch = 0, 64
+    while at < len(order):
+        todo = [k for k in order[at:at + batch] if xs[k] not in used and ys[k] not in used]
+        at += batch
+        batch = min(2 * batch, 4096)
+        ok = [True] * len(todo) if allowed is None else allowed(np.asarray(todo, np.int64))
+        for k, good in zip(todo, ok):
+            if good and xs[k] not in used and ys[k] not in used:
                 used.update((xs[k], ys[k]))
                 out.append((xs[k], ys[k]))
-            continue
-        if nxt >= len(order):
-            break
-        todo = []
-        while nxt < len(order) and len(todo) < batch:
-            if free(order[nxt]):
-                todo.append(order[nxt])
-            nxt += 1
-        batch = min(2 * batch, 4096)
-        if extra is None:
-            add = np.zeros(len(todo))
-        else:
-            add = extra(np.asarray(todo, np.int64)) if todo else np.zeros(0)
-        for k, e in zip(todo, add.tolist()):
-            if e != np.inf:
-                heapq.heappush(heap, (base[k] + e, k))
     return np.asarray(out, np.int64).reshape(-1, 2)
 
 
@@ -305,10 +283,7 @@ def _augment(joins, ea, eb, cost, allowed, depth=AUGMENT_DEPTH):
     Returns (j, 2) int, the joins."""
     ok = np.flatnonzero(allowed(np.arange(len(ea))))
     ok = ok[np.argsort(cost[ok], kind="stable")]
-    adj = {}
-    for x, y in zip(ea[ok].tolist(), eb[ok].tolist()):
-        adj.setdefault(x, []).append(y)
-        adj.setdefault(y, []).append(x)
+    adj = _neighbours(ea[ok], eb[ok])
     partner = {}
     for x, y in joins.tolist():
         partner[x], partner[y] = y, x
@@ -320,6 +295,17 @@ def _augment(joins, ea, eb, cost, allowed, depth=AUGMENT_DEPTH):
             partner[x], partner[y] = y, x
     out = sorted({(min(x, y), max(x, y)) for x, y in partner.items()})
     return np.asarray(out, np.int64).reshape(-1, 2)
+
+
+def _neighbours(x, y):
+    """Each end's neighbours across the hops ``x[i] - y[i]`` (in that order): dict end ->
+    list."""
+    src, dst = np.stack([x, y], axis=1).ravel(), np.stack([y, x], axis=1).ravel()
+    order = np.argsort(src, kind="stable")
+    src, dst = src[order], dst[order]
+    cut = np.flatnonzero(np.diff(src)) + 1
+    keys = src[np.concatenate([[0], cut])] if len(src) else src
+    return dict(zip(keys.tolist(), (d.tolist() for d in np.split(dst, cut))))
 
 
 def _alternating_path(a, adj, partner, depth):
