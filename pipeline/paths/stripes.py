@@ -29,7 +29,7 @@ from pipeline.paths.sheet import Sheet
 # path where the hop runs over other paths for no more than OVER_FACTOR widths (the
 # profile's ``toolpath.hop_reach_widths`` and ``toolpath.hop_over_widths``); over them
 # it moves dry (:mod:`pipeline.paths.dry`). Lower layers, traces a layer at reach 9 and
-# 25: real tiles at 175 mm 33 and 10, 24 and 6; saddle 38 and 8; terrain tile 25 and 7;
+# 25: real tiles at 175 mm 33 and 1, 24 and 1; saddle 38 and 2; terrain tile 25 and 2;
 # a stripe set of a real tile takes as long either way (1.3 s).
 JOIN_FACTOR = 25.0
 OVER_FACTOR = 25.0

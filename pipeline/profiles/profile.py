@@ -153,7 +153,7 @@ class ToolpathParams:
     # their ends); where it runs over them for two widths or more it moves dry. At 25
     # widths (12 mm at 0.48 mm) a dry hop at print speed takes about as long as a
     # retraction, a lift and a travel would. Lower layers on the real tiles at 175 mm,
-    # traces a layer: reach 9, over 8: 33 and 24; 25: 10 and 6.
+    # traces a layer: reach 9, over 8: 33 and 24; 25: 1 and 1.
     hop_reach_widths: float = _num(25.0, strict=False, hi=100.0)
     hop_over_widths: float = _num(25.0, strict=False, hi=100.0)
     # An end at the sheet's edge joins the path beside it, that path's tail along the
