@@ -196,15 +196,17 @@ def _toolpath_title(plan):
     across = getattr(plan, "across_toolpaths", None)
     if across is not None:
         layers = {k: " and ".join(map(str, v)) for k, v in plan.curvature.laminate.groups().items()}
-        return ("%s: tool paths of layers %s, shrink per segment (layers %s: %d traces across "
-                "them%s)" % (plan.name, layers["lower"], layers["across"], len(across.traces),
+        return ("%s: tool paths of layers %s, shrink per segment (layers %s: %s across "
+                "them%s)" % (plan.name, layers["lower"], layers["across"],
+                             figure.counted(len(across.traces), "trace"),
                              "" if up is None else "; layers %s: %d of their own, turned apart"
                              % (layers["upper"], len(up.traces))))
     if up is None:
         return "%s: tool paths, shrink per segment" % plan.name
-    return ("%s: lower layers' tool paths, shrink per segment (the upper layers print %d traces "
+    return ("%s: lower layers' tool paths, shrink per segment (the upper layers print %s "
             "of their own, turned up to %.0f degrees apart)"
-            % (plan.name, len(up.traces), plan.curvature.crossing_deg()["max"]))
+            % (plan.name, figure.counted(len(up.traces), "trace"),
+               plan.curvature.crossing_deg()["max"]))
 
 
 def _write_gcode(plan, path):

@@ -299,3 +299,8 @@ def test_pictures_count_invalid_edges_by_the_reports_criterion():
     report_invalid = (sigma < -SIGMA_TOL) | (sigma > 0.343 + SIGMA_TOL)
     assert np.array_equal(high | low, report_invalid)
     assert high.tolist() == [False, True, False, False, False]
+
+
+def test_counts_in_titles_read_as_words():
+    from pipeline.pictures.figure import counted
+    assert [counted(n, "trace") for n in (0, 1, 2)] == ["0 traces", "1 trace", "2 traces"]

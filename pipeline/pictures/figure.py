@@ -101,6 +101,11 @@ def nice_ceil(value):
     return 10 * p
 
 
+def counted(n, noun):
+    """``n`` and ``noun``, plural unless one: "1 trace", "3 traces"."""
+    return "%d %s%s" % (n, noun, "" if n == 1 else "s")
+
+
 def fmt_number(v, step=None):
     """Compact number: decimals only as many as the step (or value) needs."""
     ref = abs(step) if step else abs(v)

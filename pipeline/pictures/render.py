@@ -12,8 +12,8 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from pipeline.pictures.figure import (INK, INVALID_HIGH, INVERTED, INVALID_LOW, MUTED, WHITE, colorbar, colormap,
-                             font, fmt_number, framed, nice_ceil, scale_bar, stat_lines, swatch,
-                             text_size, to_image)
+                             counted, font, fmt_number, framed, nice_ceil, scale_bar, stat_lines,
+                             swatch, text_size, to_image)
 from pipeline.geometry import edge_index, edge_lengths, face_areas
 from pipeline.printable import SIGMA_TOL
 from pipeline.pictures.raster import dash_segments, draw_segments, rasterize_triangles
@@ -285,7 +285,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
 
     n = len(sig)
     length_mm = float(np.linalg.norm(p1 - p0, axis=1).sum())
-    sub = (f"{len(traces)} traces  |  {n} segments  |  {length_mm / 1000:.2f} m of path per layer  |  "
+    sub = (f"{counted(len(traces), 'trace')}  |  {n} segments  |  {length_mm / 1000:.2f} m of path per layer  |  "
            f"{len(t0)} travel moves")
     texts = _invalid_texts(int(high.sum()), int(low.sum()), n, s_min, s_max, "segments")
     fig, bxy, (lx, ly), (fx, fy), fs = framed(body, title or "tool paths", sub, legend_texts=texts)
