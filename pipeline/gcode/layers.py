@@ -59,14 +59,14 @@ def text_of_moves(mv, settings, layers=None):
     cols = [0] if k == 1 else range(first - 1, last)
     for col in cols:
         e_mm = (mv["len"] * (mv["th"][:, col] / 1000.0) * settings.path_width_mm
-                / settings.filament_area_mm2 * mv.get("flow", 1.0))
+                / settings.filament_area_mm2 * mv["flow"])
         e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
         if settings.relative_e:
             e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
         else:
             e_strings = format_fixed(e_cum, 5, " E")
         # A dry move (a hop over printed paths) carries no E: the nozzle moves on.
-        e_strings[mv.get("flow", np.ones(n_moves)) == 0] = ""
+        e_strings[mv["flow"] == 0] = ""
         tails[col] = ij + e_strings
         e_ends[col] = e_cum[trace_ends - 1]
         filament += e_cum[-1] / 1e5 * (last - first + 1 if k == 1 else 1)

@@ -241,7 +241,7 @@ def _outward(chains, e):
     return d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
 
 
-def _greedy(ea, eb, cost, allowed=None):
+def _greedy(ea, eb, cost, allowed):
     """Cheapest joins first, each end once. A join may close a run of pieces into a ring:
     the ring is then bridged into a path beside it (:mod:`pipeline.paths.bridges`).
 
@@ -257,7 +257,7 @@ def _greedy(ea, eb, cost, allowed=None):
         todo = [k for k in order[at:at + batch] if xs[k] not in used and ys[k] not in used]
         at += batch
         batch = min(2 * batch, 4096)
-        ok = [True] * len(todo) if allowed is None else allowed(np.asarray(todo, np.int64))
+        ok = allowed(np.asarray(todo, np.int64))
         for k, good in zip(todo, ok):
             if good and xs[k] not in used and ys[k] not in used:
                 used.update((xs[k], ys[k]))
