@@ -1,6 +1,6 @@
 """The feed rate a job prints at on one printer: slower only when its link cannot keep up.
 
-The plan's report gives the file's moves per second at print speed and its mean line
+The plan's report gives the file's moves per second at full feed and its mean line
 length; the printer's own baud (which may differ from the profile's) gives what the link
 carries. A printer starved of moves stops between them and blobs, so a job whose moves
 would take more than :data:`pipeline.gcode.link.LINK_SHARE` of the link runs at a lower
@@ -37,7 +37,7 @@ def job_feed(gcode_path, baud):
     pct = feed_percent(moves, capacity)
     if pct >= 100:
         return Feed(100, "")
-    return Feed(pct, "feed slowed to %d %%: the file asks %.0f moves/s at print speed and "
+    return Feed(pct, "feed slowed to %d %%: the file asks %.0f moves/s at full feed and "
                      "the link at %d baud carries %.0f lines/s (a print may use %d %% of it)"
                 % (pct, moves, baud, capacity, round(100 * LINK_SHARE)))
 

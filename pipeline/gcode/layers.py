@@ -138,19 +138,32 @@ def _emit_layer(sink, layer, mv, text, travel, labels):
     shown = z_um != z_prev
     zs = np.full(len(z_um), "", dtype=object)
     zs[shown] = format_fixed(z_um[shown], 3, " Z")
-    lines = text.base + zs + text.tails[col]
     f_print = travel.print_feed(layer)
+    fs, feeds = _feeds(mv, f_print, travel.f_travel)
+    lines = text.base + zs + text.tails[col] + fs
     for ti in range(len(text.trace_ends)):
         a, b = int(mv["first"][ti]), int(text.trace_ends[ti])
         blk = [";" + one_line(labels[ti])] if labels is not None and labels[ti] else []
         blk += travel.to_trace(int(z_um[a]), mv["start"][ti])
         blk.append(";TYPE:SKIN")
-        travel.f = f_print
-        sink.write("\n".join(blk) + "\n" + lines[a] + " F" + f_print + "\n")
-        if b > a + 1:
-            sink.write("\n".join(lines[a + 1:b].tolist()) + "\n")
+        sink.write("\n".join(blk) + "\n" + "\n".join(lines[a:b].tolist()) + "\n")
+        travel.f = feeds[b - 1]
         travel.z = int(z_um[b - 1])
         travel.e = int(text.e_trace_end[col][ti])
+
+
+def _feeds(mv, f_print, f_travel):
+    """The `` F..`` word of each move, where the feed rate changes, and the feed each move
+    runs at: dry moves at the travel speed, as a slicer's combing moves over infill, so
+    the nozzle oozes for as short a time as it can. Every trace's first move sets it."""
+    dry = mv["flow"] == 0
+    changed = np.ones(len(dry), bool)
+    changed[1:] = dry[1:] != dry[:-1]
+    changed[mv["first"]] = True
+    feeds = np.where(dry, f_travel, f_print).astype(object)
+    fs = np.full(len(dry), "", dtype=object)
+    fs[changed] = " F" + feeds[changed]
+    return fs, feeds
 
 
 class _Travel:

@@ -46,6 +46,7 @@ def polyline_time_s(points_mm, starts, speed, accel=ACCELERATION_MM_S2,
         All traces' points, concatenated.
     starts : (t + 1,) int
         Trace i owns ``points_mm[starts[i]:starts[i + 1]]`` (at least 2 points).
+    speed : float, or (s,) float per segment (the traces' segments in order), mm/s
 
     Returns
     -------
@@ -61,7 +62,9 @@ def polyline_time_s(points_mm, starts, speed, accel=ACCELERATION_MM_S2,
     sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos_j), 0.0, 1.0))
     with np.errstate(divide="ignore"):
         vj = np.sqrt(accel * junction_deviation_mm * sin_half / np.maximum(1 - sin_half, 0))
-    v = np.concatenate([[0.0], np.minimum(vj, speed), [0.0]])
+    speed = np.broadcast_to(np.asarray(speed, float), length.shape)
+    # A junction is taken no faster than either move's feed rate.
+    v = np.concatenate([[0.0], np.minimum(vj, np.minimum(speed[:-1], speed[1:])), [0.0]])
     seg_first = starts[:-1] - np.arange(len(starts) - 1)
     v_in = v[:-1].copy()
     v_out = v[1:].copy()

@@ -24,19 +24,22 @@ class Timing:
     z_speed_mm_s: float
 
 
-def estimate(q, starts, mv, text, settings, layers=None):
+def estimate(q, starts, mv, text, settings, layers=None, flow=None):
     """Print time of the layers ``(first, last)`` (1-based, default all) that print one
-    set of moves: extrusion, travel between traces, retractions and hops.
+    set of moves: extrusion, dry moves, travel between traces, retractions and hops.
 
     q : (n, 2) int, um, one layer's points; starts : (t+1,) int, trace i owns
-    ``q[starts[i]:starts[i+1]]``; mv : moves of one layer; text : :class:`MoveText`.
+    ``q[starts[i]:starts[i+1]]``; mv : moves of one layer; text : :class:`MoveText`;
+    flow : (s,) per segment of the traces, 0 where it moves dry (default all extruded).
     """
     first, last = layers or (1, settings.layers)
     count = last - first + 1
     acc = settings.acceleration_mm_s2
     jd = settings.junction_deviation_mm
-    t_rest, length_mm = polyline_time_s(q / 1000.0, starts, settings.print_mm_s, acc, jd)
-    t_first = (polyline_time_s(q / 1000.0, starts, settings.first_layer_mm_s, acc, jd)[0]
+    t_rest, length_mm = polyline_time_s(q / 1000.0, starts, _speeds(settings.print_mm_s,
+                                                                     flow, settings), acc, jd)
+    t_first = (polyline_time_s(q / 1000.0, starts, _speeds(settings.first_layer_mm_s, flow,
+                                                            settings), acc, jd)[0]
                if first == 1 else t_rest)
     travel_from = np.concatenate([[[0, 0]], mv["end"][text.trace_ends[:-1] - 1]]) / 1000.0
     travel_to = mv["start"] / 1000.0
@@ -54,6 +57,22 @@ def estimate(q, starts, mv, text, settings, layers=None):
     t_total = (t_first + (count - 1) * t_rest + t_travel
                + n_traces * count * (t_retract + t_hop))
     return Timing(float(t_total), float(length_mm), float(z_speed))
+
+
+def _speeds(print_mm_s, flow, settings):
+    """Feed rate per segment, mm/s: dry moves run at the travel speed, as a slicer's
+    combing moves over infill do."""
+    if flow is None:
+        return print_mm_s
+    return np.where(np.asarray(flow) == 0, settings.travel_mm_s, print_mm_s)
+
+
+def moving_s(mv, settings):
+    """Seconds one layer's moves ``mv`` take at their feed rates, ignoring acceleration:
+    the pace the link must keep up with."""
+    dry = mv["flow"] == 0
+    return (mv["len"][~dry].sum() / settings.print_mm_s
+            + mv["len"][dry].sum() / settings.travel_mm_s)
 
 
 def summary(groups, settings, clamped_segments):
@@ -78,8 +97,7 @@ def summary(groups, settings, clamped_segments):
         "segments": sum(len(g.q) - (len(g.starts) - 1) for g in sets),
         "extrusion_moves": sum(len(g.mv["len"]) * g.layers for g in groups),
         "path_length_mm": round(lower.timing.path_length_mm, 3),
-        "moves_per_s": round(max(len(g.mv["len"]) / max(g.timing.path_length_mm
-                                                         / settings.print_mm_s, 1e-9)
+        "moves_per_s": round(max(len(g.mv["len"]) / max(moving_s(g.mv, settings), 1e-9)
                                  for g in groups), 1),
     }
     for role in ("upper", "across"):

@@ -258,14 +258,16 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
         lower half (and a middle layer).
     dry : list of (k_i - 1,) bool, optional
         Segments moved without extruding (hops over printed paths,
-        :mod:`pipeline.paths.dry`): at the layer's height, no E, no retraction.
+        :mod:`pipeline.paths.dry`): at the layer's height and the travel speed, no E,
+        no retraction.
 
     Returns
     -------
     dict with ``lines``, ``bytes``, ``layers``, ``thickness_mm {min, max}``,
     ``clamped_segments`` (per 2-D path, not times layers), ``filament_mm``,
     ``filament_g``, ``estimated_print_s``, ``bed_fits``, ``travel_moves``,
-    ``traces``, ``extrusion_moves``, ``moves_per_s`` (at print speed), ``link_baud``,
+    ``traces``, ``extrusion_moves``, ``moves_per_s`` (at the feed rates, dry moves at
+    travel speed), ``link_baud``,
     ``link_moves_per_s`` (the lines per second the link carries for this file's mean
     line length), ``feed_percent`` (the feed at which the moves fit in 80 % of it), and
     ``lines_without_arcs`` when arc fitting is on; ``upper_traces`` with ``upper``.
@@ -384,13 +386,13 @@ def write_thickness_gcode(traces, thetas_mm, settings, out, name="part", center=
     _check_bed(over, settings.bed_mm)
     groups = []
     for tr, th, lab, arc, spans, role, fl in sets:
-        mv, q, starts, th_um, lab = _layer_moves(tr, th, settings, offset, lab, arc,
-                                                 arc_value_span, fl)
+        mv, q, starts, th_um, lab, seg_flow = _layer_moves(tr, th, settings, offset, lab, arc,
+                                                           arc_value_span, fl)
         for span in spans:
             g = Group(mv=mv, text=text_of_moves(mv, settings, span), first=span[0],
                       last=span[1], labels=lab, q=q, starts=starts, th_mm=th_um / 1000.0,
                       role=role)
-            g.timing = estimate(q, starts, mv, g.text, settings, span)
+            g.timing = estimate(q, starts, mv, g.text, settings, span, seg_flow)
             groups.append(g)
     stats = summary(groups, settings, clamped_segments)
     header = header_lines(groups, settings, name, header_extra)
@@ -422,9 +424,10 @@ def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_va
                  flow=None):
     """One layer's moves: traces placed on the bed (shifted by ``offset`` mm), quantised,
     thickness in whole um, runs of chords fitted by arcs. Returns ``(mv, q, starts, th_um,
-    labels)`` (see :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um
+    labels, seg_flow)`` (see :func:`pipeline.gcode.arcs.moves_with_arcs` for ``mv``; th_um
     (segments, K) int, K = 1 for equal layers, else one column per layer; labels of kept
-    traces); ``flow`` as :func:`write_thickness_gcode`'s."""
+    traces; seg_flow (segments,) each segment's flow); ``flow`` as
+    :func:`write_thickness_gcode`'s."""
     if labels is not None:
         labels = [labels[i] for i in range(len(traces))]
     columns = _layer_columns(thetas_mm, settings.layers)
@@ -447,7 +450,7 @@ def _layer_moves(traces, thetas_mm, settings, offset, labels, arc_values, arc_va
                         fix="use fewer layers or thinner layers")
     mv = moves_with_arcs(q, starts, th_um, arc_vals, settings.arc_tolerance_mm, arc_value_span,
                          seg_flow)
-    return mv, q, starts, th_um, labels
+    return mv, q, starts, th_um, labels, seg_flow
 
 
 def _layer_columns(thetas_mm, layers):

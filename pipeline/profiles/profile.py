@@ -151,7 +151,7 @@ class ToolpathParams:
     # The longest hop joining two stripe pieces into one trace, in path widths, and how
     # far it may run over printed paths (third ones, or back over its own two away from
     # their ends); where it runs over them for two widths or more it moves dry. At 25
-    # widths (12 mm at 0.48 mm) a dry hop at print speed takes about as long as a
+    # widths (12 mm at 0.48 mm) a dry hop, at the travel speed, takes less time than a
     # retraction, a lift and a travel would. Lower layers on the real tiles at 175 mm,
     # traces a layer: reach 9, over 8: 33 and 24; 25: 1 and 1.
     hop_reach_widths: float = _num(25.0, strict=False, hi=100.0)
