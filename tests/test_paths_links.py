@@ -219,3 +219,18 @@ def test_two_short_joins_in_the_wrong_places_do_not_break_a_serpentine():
     assert {tuple(j) for j in joins.tolist()} == {(1, 3), (5, 7), (9, 11)}
     merged, _ = merge_joined(chains, joins)
     assert len(merged) == 3
+
+
+def test_an_end_whose_nearest_ends_are_all_taken_is_offered_every_end_within_reach():
+    # Two rows of nine dashes, 1.5 mm long with 0.5 mm gaps, 16.5 mm apart end to end.
+    # Each row's last end has its sixteen nearest ends in its own row, all joined across
+    # the gaps (the hops along a row run over its dashes, beyond the budget); the other
+    # row's first end, 16.5 mm off, is the seventeenth nearest, but within reach.
+    sheet = shapely.box(-1, -1, 53, 1)
+    shapely.prepare(sheet)
+    chains = [_line(0.0, x0 + 2 * k, x0 + 2 * k + 1.5) for x0 in (0.0, 34.0) for k in range(9)]
+    samples, label, tree = path_samples([p for p, _, _ in chains], PW)
+    joins = join_ends(chains, PW, 20.0, sheet, samples, label, tree, over_mm=PW)
+    pairs = {tuple(j) for j in joins.tolist()}
+    across_gaps = {(2 * c + 1, 2 * c + 2) for c in range(18) if c != 8 and c != 17}
+    assert pairs == across_gaps | {(17, 18)}

@@ -28,11 +28,12 @@ from pipeline.paths.sheet import Sheet
 # Stripe pieces whose ends lie up to this many path widths apart are joined into one
 # path where the hop runs over other paths for no more than OVER_FACTOR widths (the
 # profile's ``toolpath.hop_reach_widths`` and ``toolpath.hop_over_widths``); over them
-# it moves dry (:mod:`pipeline.paths.dry`). Lower layers, traces a layer at reach 9 and
-# 25: real tiles at 175 mm 33 and 1, 24 and 1; saddle 38 and 2; terrain tile 25 and 2;
+# it moves dry (:mod:`pipeline.paths.dry`). Lower layers, traces a layer at reach 9, 25
+# and 40: real tiles at 175 mm 33, 1 and 1, 24, 1 and 1; saddle 38, 3 and 1; elongated
+# peak 23, 2 and 1 (the ends each end is offered: :data:`pipeline.paths.links.NEAREST`);
 # a stripe set of a real tile takes as long either way (1.3 s).
-JOIN_FACTOR = 25.0
-OVER_FACTOR = 25.0
+JOIN_FACTOR = 40.0
+OVER_FACTOR = 40.0
 # An end at the sheet's edge is joined to the path beside it by leaving out that path's
 # tail along the edge where the tail is no longer than this many path widths (the
 # profile's ``toolpath.rim_tail_widths``; see :mod:`pipeline.paths.rims`).

@@ -150,12 +150,13 @@ class ToolpathParams:
     chord_tolerance_mm: float = _num(0.02, strict=False, hi=1.0)
     # The longest hop joining two stripe pieces into one trace, in path widths, and how
     # far it may run over printed paths (third ones, or back over its own two away from
-    # their ends); where it runs over them for two widths or more it moves dry. At 25
-    # widths (12 mm at 0.48 mm) a dry hop, at the travel speed, takes less time than a
+    # their ends); where it runs over them for two widths or more it moves dry. At 40
+    # widths (19 mm at 0.48 mm) a dry hop, at the travel speed, takes less time than a
     # retraction, a lift and a travel would. Lower layers on the real tiles at 175 mm,
-    # traces a layer: reach 9, over 8: 33 and 24; 25: 1 and 1.
-    hop_reach_widths: float = _num(25.0, strict=False, hi=100.0)
-    hop_over_widths: float = _num(25.0, strict=False, hi=100.0)
+    # traces a layer: reach 9, over 8: 33 and 24; 25 and 40: 1 and 1; on the saddle and
+    # the elongated peak 25: 3 and 2, 40: 1 and 1.
+    hop_reach_widths: float = _num(40.0, strict=False, hi=100.0)
+    hop_over_widths: float = _num(40.0, strict=False, hi=100.0)
     # An end at the sheet's edge joins the path beside it, that path's tail along the
     # edge left out, where the tail is no longer than this many path widths (0: never).
     rim_tail_widths: float = _num(20.0, strict=False, hi=100.0)
