@@ -5,7 +5,7 @@ import numpy as np
 import shapely
 
 from pipeline.paths.links import path_samples
-from pipeline.paths.rims import join_at_rim, printed_samples
+from pipeline.paths.rims import join_at_rim, leave_slivers, printed_samples
 
 PW = 0.5
 ANGLE = np.radians(3.0)
@@ -84,3 +84,22 @@ def test_a_path_left_out_whole_leaves_the_others_numbered_in_a_row():
     left, left_label, _ = printed_samples(samples, label, tree, [lines[1]], PW)
     assert sorted(set(left_label.tolist())) == [0, 1]
     assert np.array_equal(left[left_label == 1], samples[label == 2])
+
+
+def _along(x0, x1, y, k=30):
+    x = np.linspace(x0, x1, k)
+    return (np.c_[x, np.full(k, y)], np.full(k - 1, 0.25), False)
+
+
+def test_a_short_piece_along_the_edge_on_its_own_is_left_out():
+    # A long path a few widths in, and beside it pieces along the edge (y = 0): one of
+    # 3 mm hugging it (left out), one as short two widths further in, one hugging it for
+    # longer than allowed, and a short one in the middle of the sheet.
+    chains = [_along(-4.0, 39.0, 2.0, 200), _along(0.0, 3.0, 0.25), _along(5.0, 8.0, 0.25 + 2 * PW),
+              _along(10.0, 30.0, 0.25), _along(12.0, 15.0, 5.0)]
+    kept, slivers = leave_slivers(chains, PW, EDGE.boundary, longest=20)
+    assert len(slivers) == 1 and np.allclose(slivers[0], chains[1][0])
+    assert [c[0][0, 0] for c in kept] == [-4.0, 5.0, 10.0, 12.0]
+    # Nothing is left out with the rim step off, nor the longest path.
+    assert len(leave_slivers(chains, PW, EDGE.boundary, longest=0)[1]) == 0
+    assert len(leave_slivers(chains[1:2], PW, EDGE.boundary, longest=20)[1]) == 0

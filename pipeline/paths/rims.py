@@ -7,6 +7,11 @@ edge. That next path passes a path width inward of the first one's end: cut ther
 tail (from the cut to its own end, along the edge all the way) is left out and a U-turn
 joins the end to the cut. Two ends fewer, one trace fewer, for a sliver of the edge left
 bare: the tail's bead, between the edge and the paths further in.
+
+A whole path can be such a sliver: where the stripes graze the outline beside a ring
+(round a dome, its rings turned apart in the upper layers), a piece a few millimetres
+long lies along the edge with rings on its inner side and no end within reach. It is
+left out as a tail is, rather than printed as a trace of its own.
 """
 
 import numpy as np
@@ -64,6 +69,23 @@ def join_at_rim(chains, pw, boundary, longest, printed=None):
     joins = np.array([(end_id[k], tail_id[k]) for k in picked], np.int64)
     merged, hops = merge_joined(chains, joins)
     return merged, hops, tails
+
+
+def leave_slivers(chains, pw, boundary, longest):
+    """The chains less the open ones no longer than ``longest`` path widths that lie
+    within ``ALONG_EDGE`` widths of the outline ``boundary`` all along, but for the
+    longest chain. Returns (the chains, the slivers left out: list of (k, 2) mm)."""
+    length = np.array([polyline_length(p) for p, _, _ in chains])
+    short = [c for c, (_, _, closed) in enumerate(chains)
+             if not closed and length[c] <= longest * pw and length[c] < length.max()]
+    if not short:
+        return chains, []
+    samples, label, _ = sample_tree([chains[c][0] for c in short], pw / 4)
+    off = _edge_distance(boundary, samples, pw) > ALONG_EDGE * pw
+    along = np.bincount(label, weights=off, minlength=len(short)) == 0
+    drop = {short[k] for k in np.flatnonzero(along).tolist()}
+    return ([c for k, c in enumerate(chains) if k not in drop],
+            [chains[k][0] for k in sorted(drop)])
 
 
 def _end_stretches(chains, open_, reach):

@@ -382,7 +382,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     from pipeline.paths.isoline import _order_traces, _outline_polygon, boundary_loop, finished
     from pipeline.paths.bridges import bridge_rings
     from pipeline.paths.ends import retract_ends
-    from pipeline.paths.rims import join_at_rim, printed_samples
+    from pipeline.paths.rims import join_at_rim, leave_slivers, printed_samples
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles
     xy = np.asarray(xy, dtype=float)
@@ -408,9 +408,10 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     joined, _ = merge_joined(chains, joins)
     joined, rungs = bridge_rings(joined, width_mm)
     joined, _, tails = join_at_rim(joined, width_mm, outline.boundary, rim_tail_factor,
-                                          printed=(samples, tree))
+                                   printed=(samples, tree))
+    joined, slivers = leave_slivers(joined, width_mm, outline.boundary, rim_tail_factor)
     # The tails left out print nothing: the figures are those of the paths printed.
-    samples, label, tree = printed_samples(samples, label, tree, tails, width_mm)
+    samples, label, tree = printed_samples(samples, label, tree, tails + slivers, width_mm)
     traces, tsig = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
                                  merge_angle_deg, merge_sigma, footprint)
     paths = finished(traces, tsig, raw, xy, faces, None, None, outline, width_mm, len(chains),
@@ -432,4 +433,6 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     info["ring_bridges"] = len(rungs) // 2
     info["rim_tails"] = len(tails)
     info["rim_tail_mm"] = float(sum(polyline_length(t) for t in tails))
+    info["rim_slivers"] = len(slivers)
+    info["rim_sliver_mm"] = float(sum(polyline_length(t) for t in slivers))
     return paths
