@@ -7,8 +7,8 @@ from the ends it joins: on the real tiles at 175 mm about 3 % of the path length
 plastic with nowhere to go that lifts the nozzle and thickens the sheet there. Over
 those stretches the nozzle moves at the layer's height without extruding, as slicers
 comb travel moves over printed infill: at the travel speed, with no retraction and no
-lift, so the trace goes on where it would have. A stretch too short to stop the flow for stays extruded, and so
-does a short extruded stretch between two dry ones.
+lift, so the trace goes on where it would have. A stretch too short to stop the flow for
+stays extruded, and so does a short extruded stretch between two dry ones.
 
 The stages that join paths (:mod:`pipeline.paths.links`, :mod:`pipeline.paths.bridges`,
 :mod:`pipeline.paths.rims` and the ordering of traces) mark each join they make with
