@@ -70,9 +70,7 @@ def _speeds(print_mm_s, flow, settings):
 def moving_s(mv, settings):
     """Seconds one layer's moves ``mv`` take at their feed rates, ignoring acceleration:
     the pace the link must keep up with."""
-    dry = mv["flow"] == 0
-    return (mv["len"][~dry].sum() / settings.print_mm_s
-            + mv["len"][dry].sum() / settings.travel_mm_s)
+    return float((mv["len"] / _speeds(settings.print_mm_s, mv["flow"], settings)).sum())
 
 
 def summary(groups, settings, clamped_segments):

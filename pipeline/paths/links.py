@@ -186,18 +186,18 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     d, j = end_tree.query(ends, k=k, distance_upper_bound=max_mm)
     i = np.repeat(np.arange(len(ends)), k)
     d, j = d.ravel(), j.ravel()
-    pairs = _unique_pairs(i[np.isfinite(d)], j[np.isfinite(d)])
-    hops = _Hops(chains, ends, end_id, pairs, footprint, pw, over_mm, (samples, label, tree))
+    first = _pair_keys(i[np.isfinite(d)], j[np.isfinite(d)], len(ends))
+    hops = _Hops(chains, ends, end_id, footprint, pw, over_mm, (samples, label, tree))
+    hops.add(first)
     joins = _augment(_greedy(*hops.matching), *hops.matching)
     loose = np.flatnonzero(~np.isin(end_id, joins))
-    if not len(loose):
+    near = end_tree.query_ball_point(ends[loose], max_mm) if len(loose) else []
+    i = np.repeat(loose, [len(nb) for nb in near])
+    j = np.fromiter((b for nb in near for b in nb), np.int64, count=len(i))
+    more = np.setdiff1d(_pair_keys(i, j, len(ends)), first, assume_unique=True)
+    if not len(more):
         return joins
-    near = end_tree.query_ball_point(ends[loose], max_mm)
-    more = np.array([(a, b) for a, nb in zip(loose.tolist(), near) for b in nb], np.int64)
-    wider = _unique_pairs(*np.concatenate([pairs, more.reshape(-1, 2)]).T)
-    if len(wider) == len(pairs):
-        return joins
-    hops = _Hops(chains, ends, end_id, wider, footprint, pw, over_mm, (samples, label, tree))
+    hops.add(more)
     return _augment(joins, *hops.matching)
 
 
@@ -210,35 +210,52 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
 NEAREST = 16
 
 
-def _unique_pairs(i, j):
-    """Unordered index pairs ``i - j`` without self pairs or repeats: (p, 2) int."""
+def _pair_keys(i, j, n):
+    """Unordered pairs ``i - j`` of ``n`` ends, without self pairs or repeats, each as
+    one sorted key ``lo * n + hi``: (p,) int."""
     lo, hi = np.minimum(i, j), np.maximum(i, j)
-    n = int(hi.max(initial=0)) + 1
-    key = np.unique((lo * n + hi)[lo != hi])
-    return np.stack([key // n, key % n], axis=1)
+    return np.unique((lo * n + hi)[lo != hi])
 
 
 class _Hops:
-    """The candidate hops between ``pairs`` of ``ends`` ((e, 2) mm, numbered ``end_id``)
-    that lie on the sheet: their ends, their cost and the test of whether one may be
-    taken (``matching``, the arguments of :func:`_greedy` and :func:`_augment`)."""
+    """The candidate hops between pairs of ``ends`` ((e, 2) mm, numbered ``end_id``) that
+    lie on the sheet, as they are added (:meth:`add`): their ends, their cost and the test
+    of whether one may be taken (``matching``, the arguments of :func:`_greedy` and
+    :func:`_augment`)."""
 
-    def __init__(self, chains, ends, end_id, pairs, footprint, pw, over_mm, sampled):
-        import shapely
-        ea, eb = end_id[pairs[:, 0]], end_id[pairs[:, 1]]
-        a, b = ends[pairs[:, 0]], ends[pairs[:, 1]]
-        mid = (a + b) / 2
-        keep = (ea // 2 != eb // 2) & shapely.contains_xy(footprint, mid[:, 0], mid[:, 1])
-        self.a, self.b, self.ea, self.eb = a[keep], b[keep], ea[keep], eb[keep]
-        self.length = np.linalg.norm(self.b - self.a, axis=1)
-        # A turn costs two widths: across a gap, running straight on beats a U-turn.
-        cost = self.length + 2 * pw * _turn(chains, self.ea, self.eb, self.a, self.b)
-        self.inside = shapely.contains(
-            footprint, shapely.linestrings(np.stack([self.a, self.b], axis=1)))
-        self.known = np.full(len(self.a), np.nan)
+    def __init__(self, chains, ends, end_id, footprint, pw, over_mm, sampled):
+        self.chains, self.ends, self.end_id, self.footprint = chains, ends, end_id, footprint
         self.pw, self.over_mm, self.sampled = pw, over_mm, sampled
         self.from_end = end_distances(*sampled[:2])
-        self.matching = (self.ea, self.eb, cost, self.allowed)
+        self.a = self.b = np.zeros((0, 2))
+        self.ea = self.eb = np.zeros(0, np.int64)
+        self.length = self.cost = self.known = np.zeros(0)
+        self.inside = np.zeros(0, bool)
+
+    def add(self, keys):
+        """The hops between the pairs ``keys`` (of :func:`_pair_keys`) added."""
+        import shapely
+        n = len(self.ends)
+        ia, ib = keys // n, keys % n
+        ea, eb = self.end_id[ia], self.end_id[ib]
+        a, b = self.ends[ia], self.ends[ib]
+        mid = (a + b) / 2
+        keep = (ea // 2 != eb // 2) & shapely.contains_xy(self.footprint, mid[:, 0], mid[:, 1])
+        a, b, ea, eb = a[keep], b[keep], ea[keep], eb[keep]
+        length = np.linalg.norm(b - a, axis=1)
+        # A turn costs two widths: across a gap, running straight on beats a U-turn.
+        cost = length + 2 * self.pw * _turn(self.chains, ea, eb, a, b)
+        inside = shapely.contains(self.footprint, shapely.linestrings(np.stack([a, b], axis=1)))
+        self.a, self.b = np.concatenate([self.a, a]), np.concatenate([self.b, b])
+        self.ea, self.eb = np.concatenate([self.ea, ea]), np.concatenate([self.eb, eb])
+        self.length = np.concatenate([self.length, length])
+        self.cost = np.concatenate([self.cost, cost])
+        self.inside = np.concatenate([self.inside, inside])
+        self.known = np.concatenate([self.known, np.full(len(a), np.nan)])
+
+    @property
+    def matching(self):
+        return self.ea, self.eb, self.cost, self.allowed
 
     def over(self, k):
         """How far hops ``k`` run over paths (inf where not on the sheet); each hop is
