@@ -221,11 +221,14 @@ def test_two_short_joins_in_the_wrong_places_do_not_break_a_serpentine():
     assert len(merged) == 3
 
 
-def test_an_end_whose_nearest_ends_are_all_taken_is_offered_every_end_within_reach():
+def test_an_end_whose_nearest_ends_are_all_taken_is_offered_every_end_within_reach(
+        monkeypatch):
     # Two rows of nine dashes, 1.5 mm long with 0.5 mm gaps, 16.5 mm apart end to end.
     # Each row's last end has its sixteen nearest ends in its own row, all joined across
     # the gaps (the hops along a row run over its dashes, beyond the budget); the other
     # row's first end, 16.5 mm off, is the seventeenth nearest, but within reach.
+    from pipeline.paths import links
+    monkeypatch.setattr(links, "NEAREST", 16)
     sheet = shapely.box(-1, -1, 53, 1)
     shapely.prepare(sheet)
     chains = [_line(0.0, x0 + 2 * k, x0 + 2 * k + 1.5) for x0 in (0.0, 34.0) for k in range(9)]
