@@ -103,3 +103,12 @@ def test_rungs_print_over_no_other_path():
         assert set(label[found].tolist()) <= set(joined[k // 9].tolist())
     # Each rung joins two rings side by side.
     assert np.all(np.abs(joined[:, 0] - joined[:, 1]) == 1)
+
+
+def test_small_rings_between_rings_on_both_sides_are_bridged_outward():
+    """Round a centre, each small ring lies a width from the rings on both sides, and
+    along it the nearest of the two changes by turns; the bridges ask both, so the
+    innermost rings join the ones outside them (the dome's centre once stood alone)."""
+    rings = [_ring(r, k=int(80 * r)) for r in (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)]
+    merged, rungs = bridge_rings(rings, PW)
+    assert len(merged) == 1 and merged[0][2] and len(rungs) == 2 * (len(rings) - 1)

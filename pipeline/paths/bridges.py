@@ -70,13 +70,9 @@ def _sites(samples, label, tree, arc, bounds, closed, pw):
     i2 = np.searchsorted(key, key[i] + pw)
     ok = i2 < bounds[label[i] + 1] - 1
     i, i2 = i[ok], i2[ok]
-    j, dj = nearest_other(samples, label, tree, np.r_[i, i2], SPACING[1] * pw)
-    j[dj < SPACING[0] * pw] = -1
-    j, j2 = j[:len(i)], j[len(i):]
-    dj, dj2 = dj[:len(i)], dj[len(i):]
+    i, i2, j, j2, dj, dj2 = _beside(samples, label, tree, i, i2, pw)
     lo = SPACING[0]
     ok = (j >= 0) & (j2 >= 0)
-    ok[ok] &= label[j[ok]] == label[j2[ok]]
     run = np.abs(arc[np.maximum(j2, 0)] - arc[np.maximum(j, 0)])
     ok &= (run > lo * pw) & (run < RUN * pw)
     # Away from the neighbour's ends, where another hop may join it.
@@ -95,6 +91,32 @@ def _sites(samples, label, tree, arc, bounds, closed, pw):
     best = best[_rank(badness[best], pair[best]) < _PER_PAIR]
     best = best[np.argsort(badness[best], kind="stable")]
     return np.stack([i, i2, j, j2], axis=1)[best]
+
+
+def _beside(samples, label, tree, i, i2, pw):
+    """The paths beside ring samples ``i`` and ``i2``: for each, its nearest sample on
+    another path and the nearest on a third one, unless a path comes closer than
+    ``SPACING``. A ring between two others a width off on both sides has one or the
+    other nearest by turns along it (the rings round a dome's centre): both are asked, so
+    either can be bridged. Returns (i, i2, j, j2, dj, dj2) with each probe twice, ``j``
+    and ``j2`` on one path (-1 where ``i2`` has none on it), and their distances."""
+    at = np.r_[i, i2]
+    reach = SPACING[1] * pw
+    near, d_near = nearest_other(samples, label, tree, at, reach)
+    nxt, d_nxt = nearest_other(samples, label, tree, at, reach,
+                               skip=np.where(near >= 0, label[np.maximum(near, 0)], -1))
+    crowded = d_near < SPACING[0] * pw
+    near[crowded], nxt[crowded | (d_nxt < SPACING[0] * pw)] = -1, -1
+    n = len(i)
+    j, dj = np.r_[near[:n], nxt[:n]], np.r_[d_near[:n], d_nxt[:n]]
+    path = np.where(j >= 0, label[np.maximum(j, 0)], -2)
+    j2, dj2 = np.full(2 * n, -1), np.full(2 * n, np.inf)
+    # At ``i2`` the nearest on that path wins over the next nearest.
+    for k, d in ((nxt[n:], d_nxt[n:]), (near[n:], d_near[n:])):
+        k, d = np.tile(k, 2), np.tile(d, 2)
+        same = (k >= 0) & (label[np.maximum(k, 0)] == path)
+        j2[same], dj2[same] = k[same], d[same]
+    return np.r_[i, i], np.r_[i2, i2], j, j2, dj, dj2
 
 
 def _first_of(value, *groups):

@@ -91,12 +91,13 @@ def _to_another(points, own, label, tree, reach, k):
     return d[has, np.argmax(other[has], axis=1)]
 
 
-def nearest_other(samples, label, tree, at, reach, k=16):
+def nearest_other(samples, label, tree, at, reach, k=16, skip=None):
     """For samples ``at`` ((a,) int), the nearest sample of another path (``label`` (q,)
     the path of each of ``samples``, ``tree`` their KD-tree) within ``reach`` mm, -1
-    where none, and its distance (mm, inf where none): (a,), (a,). ``k`` neighbours are
-    asked first; where a path's own points crowd (corners closer than the sampling) and
-    fill them all, four times as many are asked again."""
+    where none, and its distance (mm, inf where none): (a,), (a,). With ``skip`` ((a,)
+    int) that path is passed over too. ``k`` neighbours are asked first; where a path's
+    own points crowd (corners closer than the sampling) and fill them all, four times as
+    many are asked again."""
     j = np.full(len(at), -1, np.int64)
     near = np.full(len(at), np.inf)
     ask = np.arange(len(at))
@@ -106,6 +107,8 @@ def nearest_other(samples, label, tree, at, reach, k=16):
         d, n = d.reshape(len(ask), k), n.reshape(len(ask), k)
         n = np.minimum(n, len(label) - 1)
         other = (label[n] != label[at[ask]][:, None]) & np.isfinite(d)
+        if skip is not None:
+            other &= label[n] != skip[ask][:, None]
         has = other.any(axis=1)
         first = np.argmax(other, axis=1)
         rows = np.arange(len(ask))
