@@ -103,10 +103,14 @@ def _beside(samples, label, tree, i, i2, pw):
     at = np.r_[i, i2]
     reach = SPACING[1] * pw
     near, d_near = nearest_other(samples, label, tree, at, reach)
-    nxt, d_nxt = nearest_other(samples, label, tree, at, reach,
-                               skip=np.where(near >= 0, label[np.maximum(near, 0)], -1))
     crowded = d_near < SPACING[0] * pw
-    near[crowded], nxt[crowded | (d_nxt < SPACING[0] * pw)] = -1, -1
+    near[crowded] = -1
+    # Only probes with a path beside them can have a second one.
+    ask = np.flatnonzero(near >= 0)
+    nxt, d_nxt = np.full(len(at), -1), np.full(len(at), np.inf)
+    nxt[ask], d_nxt[ask] = nearest_other(samples, label, tree, at[ask], reach,
+                                         skip=label[near[ask]])
+    nxt[d_nxt < SPACING[0] * pw] = -1
     n = len(i)
     j, dj = np.r_[near[:n], nxt[:n]], np.r_[d_near[:n], d_nxt[:n]]
     path = np.where(j >= 0, label[np.maximum(j, 0)], -2)
