@@ -163,8 +163,44 @@ def monkey_saddle(diameter_mm=136.0, height_mm=22.0, pixel_mm=0.5):
                        "monkey_saddle")
 
 
+def _band_noise(rng, n, wavelength_px):
+    """(n, n) noise of unit std whose features are about ``wavelength_px`` across."""
+    k = np.fft.fftfreq(n)
+    kk = np.hypot(*np.meshgrid(k, k))
+    f0 = 1.0 / wavelength_px
+    band = np.exp(-0.5 * ((kk - f0) / (0.35 * f0)) ** 2)
+    field = np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * band).real
+    return field / field.std()
+
+
+def rough_terrain(size_mm=175.0, height_mm=30.0, pixel_mm=0.5, seed=3):
+    """A square tile of ridged terrain with detail at several scales, not smooth hills.
+
+    Broad masses (90 mm) carry ridged noise (``(1 - |n|)^2``: sharp crests, rounded
+    valleys) at wavelengths of 40, 16, 7 and 3 mm, each octave fainter and, as in real
+    relief, stronger where the larger ones stand high; a regional slope so the edge is not
+    at one height.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(round(size_mm / pixel_mm)) + 1
+    mass = _band_noise(rng, n, 90.0 / pixel_mm)  # mountain masses and basins
+    z = 1.2 * mass
+    weight = np.clip(0.6 + 0.4 * mass, 0.1, 1.0)
+    for wavelength_mm, amp in ((40.0, 1.0), (16.0, 0.45), (7.0, 0.2), (3.0, 0.08)):
+        ridge = (1.0 - np.abs(_band_noise(rng, n, wavelength_mm / pixel_mm))) ** 2
+        z += amp * weight * ridge
+        weight = np.clip(weight * (0.4 + 0.6 * ridge), 0.05, 1.0)
+    x, y = np.meshgrid(np.arange(n), np.arange(n)[::-1])
+    z += 0.3 * (x + 0.5 * y) / n
+    z -= z.min()
+    z *= height_mm / z.max()
+    return HeightField(z, pixel_mm, source="rough_terrain")
+
+
 REFERENCE = {"dome": dome, "elongated_peak": elongated_peak, "saddle": saddle,
              "three_islands": three_islands, "starfish": starfish, "terrain_tile": terrain_tile}
 STRESS = {"starfish_ridged": starfish_ridged}
+# Real-like relief: ridges and valleys at several scales (planned with the fit).
+TERRAIN = {"rough_terrain": rough_terrain}
 # Negatively curved shapes the free-direction layout forms and the paper's cannot.
 SADDLES = {"hyperbolic_paraboloid": hyperbolic_paraboloid, "monkey_saddle": monkey_saddle}
