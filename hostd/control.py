@@ -1,7 +1,13 @@
 """The terminal commands' door into a running daemon (``hostd requeue/cancel/pause/resume``).
 
-The CLI writes a request into the job store's ``control`` table; the run loop calls
-:meth:`ControlMixin._control` every tick, which carries it out and writes the answer.
+The CLI (and the web) writes a request into the job store's ``control`` table:
+``store.request(action, target)``, with ``action`` one of :data:`ACTIONS` and ``target`` a job
+id, a printer's name or (reorder) a JSON list of job ids. The run loop calls
+:meth:`Control.answer` every tick, which carries each out and writes the answer
+(``ok``, text) that ``store.wait_answer`` returns.
+
+An object handed the configuration, the job store, the printers, the plans, the farm, the
+routing rules and the endings.
 """
 
 import logging
@@ -15,15 +21,30 @@ from hostd.errors import HostdError
 log = logging.getLogger("hostd.daemon")
 
 
-class ControlMixin:
-    """Request handlers of :class:`hostd.daemon.Daemon` (uses its store, slots, plans)."""
+ACTIONS = ("cancel", "requeue", "approve", "pause", "resume", "estop", "reorder")
 
-    # -- terminal commands ----------------------------------------------------------------------------
 
-    def _control(self):
+class Control:
+    """The answers to requests from the terminal commands and the web."""
+
+    def __init__(self, config, store, slots, plans=None, farm=None, routes=None, endings=None):
+        self.config = config
+        self.store = store
+        self.slots = slots
+        self.plans = plans
+        self.farm = farm
+        self.routes = routes
+        self.endings = endings
+
+    def answer(self):
+        """Carry out every pending request and write its answer."""
         for req in self.store.pending_requests():
             try:
-                ok, result = True, getattr(self, "_do_" + req["action"])(req["target"])
+                if req["action"] not in ACTIONS:
+                    raise HostdError("unknown request %r" % req["action"],
+                                     code="control.unknown_action",
+                                     fix="ask one of: " + ", ".join(ACTIONS))
+                ok, result = True, getattr(self, req["action"])(req["target"])
             except HostdError as exc:
                 ok, result = False, exc.text()
             except Exception as exc:  # answer the CLI whatever happens, then carry on
@@ -39,7 +60,7 @@ class ControlMixin:
                          code="control.unknown_printer",
                          fix="printers here: " + ", ".join(s.name for s in self.slots))
 
-    def _do_cancel(self, job_id):
+    def cancel(self, job_id):
         job = self.store.require(job_id)
         if job["state"] in J.FINISHED:
             raise HostdError("job %s is already %s" % (job["id"], job["state"]),
@@ -50,11 +71,11 @@ class ControlMixin:
                     slot.printer.cancel()
             return "cancelling %s: the printer runs its cancel script" % job["id"]
         self.plans.cancel(job["id"])
-        self._to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
+        self.endings.to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
                         state=J.CANCELLED)
         return "cancelled %s" % job["id"]
 
-    def _do_requeue(self, job_id):
+    def requeue(self, job_id):
         job = self.store.require(job_id)
         if job["state"] not in J.FINISHED:
             raise HostdError("job %s is %s, not finished" % (job["id"], job["state"]),
@@ -88,7 +109,7 @@ class ControlMixin:
             return "not requeued: %s" % problem
         return "requeued %s" % job["id"]
 
-    def _do_approve(self, job_id):
+    def approve(self, job_id):
         job = self.store.require(job_id)
         if job["state"] != J.READY or not job["decision"]:
             raise HostdError("job %s does not wait for a decision (it is %s)"
@@ -106,7 +127,7 @@ class ControlMixin:
         try:
             sidecar = load_sidecar(side) if side else None
         except PipelineError as exc:
-            self._fail(job, exc.text(), exc.code)
+            self.endings.fail(job, exc.text(), exc.code)
             return exc.text()
         profile = self.routes.profile_for(job["target"], sidecar)
         self.store.update(job["id"], profile=profile,
@@ -115,11 +136,11 @@ class ControlMixin:
         job = self.store.get(job["id"])
         if not any(self.routes.eligible(s, job) for s in self.slots):
             reason = self.routes.no_printer_text(profile, job["target"])
-            self._fail(job, reason, "job.no_printer")
+            self.endings.fail(job, reason, "job.no_printer")
             return reason
         return None
 
-    def _do_pause(self, name):
+    def pause(self, name):
         slot = self._slot(name)
         slot.paused = True
         self.store.set_printer(name, paused=1)
@@ -128,7 +149,7 @@ class ControlMixin:
             self.store.event(slot.job_id, "paused", "paused by a person")
         return "paused %s" % name
 
-    def _do_resume(self, name):
+    def resume(self, name):
         slot = self._slot(name)
         slot.paused = False
         slot.held = None
@@ -145,7 +166,7 @@ class ControlMixin:
         return "resumed %s" % name
 
 
-    def _do_estop(self, name):
+    def estop(self, name):
         # The web writes M112 itself when it runs in this process; a second one is harmless
         # and covers requests from another process.
         from hostd.printer import PrinterError
@@ -164,7 +185,7 @@ class ControlMixin:
         log.warning("printer %s: emergency stop by a person", name)
         return "emergency stop sent to %s (M112); reset the printer, then resume" % name
 
-    def _do_reorder(self, order_json):
+    def reorder(self, order_json):
         """``order_json``: job ids, first to print first; the rest keep their order after."""
         import json
         order = json.loads(order_json)

@@ -1,7 +1,7 @@
 """Intake: complete files in the drop folder become this node's jobs.
 
-A mixin of :class:`hostd.daemon.Daemon` (uses its watcher, farm, store and slots). A file
-is claimed (renamed into this node's claim folder) and recorded with its sidecar's options
+An object handed the configuration, the job store, the watcher, the farm, the routing rules,
+the printers and the endings (how a job that cannot be taken fails). A file is claimed (renamed into this node's claim folder) and recorded with its sidecar's options
 and the profile it will be planned with; a node sharing the drop folder with other live
 nodes takes only what it can start soon.
 
@@ -30,10 +30,20 @@ def outage(exc):
     return isinstance(exc, OSError) or (isinstance(exc, HostdError) and exc.code == J.DISK_FULL)
 
 
-class IntakeMixin:
+class Intake:
     """From the drop folder to a recorded job."""
 
-    def _take_new(self, now):
+    def __init__(self, config, store, watcher, farm, routes, slots, endings):
+        self.config = config
+        self.store = store
+        self.watcher = watcher
+        self.farm = farm
+        self.routes = routes
+        self.slots = slots
+        self.endings = endings
+        self._skipped = set()      # drop paths told once as meant for no printer here
+
+    def take_new(self, now):
         room = None
         cands = self.watcher.poll(now)
         end = time.monotonic() + SLICE_S
@@ -43,12 +53,12 @@ class IntakeMixin:
                     self.watcher.forget(rest)
                 self.watcher.wake.set()     # scan again at the next round, not after poll_s
                 return
-            room = self._claim_room() if room is None else room
+            room = self.claim_room() if room is None else room
             if room <= 0:
                 self.watcher.forget(cand)   # offered again at the next scan
                 continue
             try:
-                if self._intake(cand):
+                if self.take(cand):
                     room -= 1
             except Exception as exc:
                 if outage(exc):
@@ -65,7 +75,7 @@ class IntakeMixin:
                  "this_node": self.routes.target_ok(rel.split("/")[0] if "/" in rel else None)}
                 for rel, size, complete in self.watcher.inputs]
 
-    def _claim_room(self):
+    def claim_room(self):
         """How many more files this node takes now. Alone it takes them all (they show up
         as jobs at once); with other live nodes on the share it holds ``claim_ahead`` per
         printer, queued to printing, and leaves the rest in the drop folder for them."""
@@ -74,7 +84,7 @@ class IntakeMixin:
         held = len(self.store.list(J.ACTIVE))
         return self.config.claim_ahead * len(self.slots) - held
 
-    def _intake(self, cand):
+    def take(self, cand):
         """Claim and record one complete file; True if this node took it."""
         if not self.routes.target_ok(cand.target):
             if cand.rel_path not in self._skipped:
@@ -86,10 +96,10 @@ class IntakeMixin:
         if claimed is None:
             return False
         path, side = claimed
-        self._add_job(cand.path.name, cand.rel_path, path, side, cand.target)
+        self.add_job(cand.path.name, cand.rel_path, path, side, cand.target)
         return True
 
-    def _add_job(self, name, rel_path, path, side, target):
+    def add_job(self, name, rel_path, path, side, target):
         """Record a claimed file as a job; one that cannot be goes to failed/."""
         try:
             self._new_job(name, rel_path, path, side, target)
@@ -109,7 +119,7 @@ class IntakeMixin:
                     rel_path, type(exc).__name__, exc, self.config.node_id))
         job = next((j for j in self.store.list(J.ACTIVE) if j["input_path"] == str(path)), None)
         if job is not None:
-            return self._fail(job, text + ". If a requeue fails the same way, report it with "
+            return self.endings.fail(job, text + ". If a requeue fails the same way, report it with "
                               "that log", "job.intake_failed")
         archive_failed(path, side, self.config.failed_dir, name, text + ".\n\nTo try again, "
                        "move the file (and its sidecar) back into the drop folder; if it fails "
@@ -131,7 +141,7 @@ class IntakeMixin:
             sidecar = load_sidecar(side) if side else None
         except PipelineError as exc:
             job_id = self.store.add(name, rel_path, path, **values)
-            return self._fail(self.store.get(job_id), exc.text(), exc.code)
+            return self.endings.fail(self.store.get(job_id), exc.text(), exc.code)
         profile = self.routes.profile_for(target, sidecar)
         values.update(profile=profile, priority=sidecar.priority if sidecar else 0,
                       copies=sidecar.copies if sidecar else 1)
@@ -140,4 +150,4 @@ class IntakeMixin:
         job = self.store.get(job_id)
         why_not = self.routes.why_not(job)
         if why_not:
-            return self._fail(job, why_not, "job.no_printer")
+            return self.endings.fail(job, why_not, "job.no_printer")

@@ -324,7 +324,7 @@ def test_a_round_that_fails_does_not_count_as_one(tmp_path, monkeypatch):
     try:
         d.tick()
         done = d.watch.last_tick
-        monkeypatch.setattr(d, "_follow_prints", lambda: 1 / 0)
+        monkeypatch.setattr(d.printing, "follow", lambda: 1 / 0)
         with pytest.raises(ZeroDivisionError):
             d.tick()
         assert d.watch.last_tick == done
@@ -359,7 +359,7 @@ def test_after_a_damaged_job_database_the_claimed_files_wait_for_a_person(tmp_pa
         for _ in range(20):
             d.tick()
         assert d.slots[0].job_id is None, "held: nothing starts before a person resumes"
-        d._do_resume("p1")
+        d.control.resume("p1")
         assert d.problem is None
         run_until(d, lambda: d.store.get(job["id"])["state"] == J.DONE, what="the print")
     finally:
@@ -389,7 +389,7 @@ def test_while_another_hostd_writes_the_lease_nothing_is_taken(tmp_path, caplog)
     caplog.set_level(logging.INFO, logger="hostd.daemon")
     d = in_process_daemon(tmp_path, time_scale=0)
     try:
-        d._twin_seen("0123abcd raspberrypi 4242", time.monotonic())
+        d.outages.twin_seen("0123abcd raspberrypi 4242", time.monotonic())
         assert "another hostd uses node_id 'n1' on this share: hostd pid 4242 on host " \
             "raspberrypi" in d.problem and list(d.problems()) == ["node_id"]
         drop_dome(d, tmp_path, "dome.npy")
@@ -397,7 +397,7 @@ def test_while_another_hostd_writes_the_lease_nothing_is_taken(tmp_path, caplog)
             d.tick()
             time.sleep(0.02)
         assert d.store.list() == [], "nothing claimed while a twin writes the lease"
-        d._twin_seen(None, time.monotonic() + d.config.lease_s + 1)
+        d.outages.twin_seen(None, time.monotonic() + d.config.lease_s + 1)
         assert d.problem is None and "carrying on" in caplog.text
         run_until(d, lambda: d.store.list(), what="the file to be claimed")
     finally:

@@ -106,7 +106,7 @@ def test_a_job_the_link_cannot_carry_prints_slower_and_says_so(tmp_path, baud):
             d.tick()
             time.sleep(0.02)
             job = (d.store.list() or [None])[0]
-        gcode = d._gcode(job)
+        gcode = d.printing.gcode(job)
         feed = job_feed(gcode, baud)
         first = d.slots[0].printer.simulator.commands()
         first = [c for c in first if not c.startswith(("M105", "M155", "M110", "M115"))][0]

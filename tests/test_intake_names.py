@@ -45,13 +45,13 @@ def test_one_files_failure_at_intake_leaves_the_others_taken(tmp_path, monkeypat
         drop = d.config.drop_dir
         write_dome(drop / "a.npy")
         write_dome(drop / "b.npy")
-        real = d._intake
+        real = d.intake.take
 
         def faulty(cand):
             if cand.path.name == "a.npy":
                 raise RuntimeError("a fault of this file alone")
             return real(cand)
-        monkeypatch.setattr(d, "_intake", faulty)
+        monkeypatch.setattr(d.intake, "take", faulty)
         tick_until(d, lambda: len(d.store.list()) == 1)
         assert [j["name"] for j in d.store.list()] == ["b.npy"]
     finally:

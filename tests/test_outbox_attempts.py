@@ -19,7 +19,7 @@ def test_a_requeued_job_shows_only_the_new_attempts_files(tmp_path):
         outbox = Path(first["outbox"])
         assert (outbox / "dome.error.json").exists()
         (Path(d.config.failed_dir) / "dome.yaml").write_text("size_mm: 20\n")
-        assert d._do_requeue(first["id"]).startswith("requeued")
+        assert d.control.requeue(first["id"]).startswith("requeued")
         tick_until(d, lambda: job()["state"] in (J.READY, J.PRINTING, J.DONE), what="the new plan")
         names = sorted(f.name for f in outbox.iterdir())
         assert "dome.error.json" not in names and "dome.gcode" in names

@@ -85,11 +85,11 @@ def test_the_daemon_holds_it_at_ready_until_a_person_approves(tmp_path, monkeypa
         assert "Print anyway" in page and "Waits for you" in page and "{&#39;code" not in page
         assert "Layout method</dt><dd>isoline" in page
         assert "Print anyway" in client.get("/").get_data(as_text=True)
-        assert d._do_approve(job()["id"]).startswith("approved")
+        assert d.control.approve(job()["id"]).startswith("approved")
         assert job()["decision"] is None
         tick_until(d, lambda: job()["state"] in (J.PRINTING, J.DONE), what="the print")
         with pytest.raises(Exception, match="does not wait"):
-            d._do_approve(job()["id"])
+            d.control.approve(job()["id"])
     finally:
         d.shutdown()
 

@@ -36,7 +36,7 @@ def test_an_abnormal_end_holds_the_printer_until_resumed(tmp_path, fault):
         view = NodeView(d.config, d, db_path=d.config.db_path)
         card = [p for p in view.printers() if p["name"] == "p1"][0]
         assert "first.npy" in card["held"]
-        assert d._do_resume("p1") == "resumed p1"
+        assert d.control.resume("p1") == "resumed p1"
         assert slot.held is None and d.store.printers()["p1"]["held"] is None
         tick_until(d, lambda: _state(d, "second.npy") in (J.PRINTING, J.DONE, J.FAILED),
                    what="the second print to start after the resume")

@@ -39,7 +39,7 @@ def test_a_printer_that_stalled_and_came_back_reconnects_when_resumed(tmp_path, 
                 if p["name"] == "p1"][0]
         assert card["state"] == "error" and "not responding" in card["error"]
         assert card["temperatures_stale"]
-        assert d._do_resume("p1").endswith("reconnecting")
+        assert d.control.resume("p1").endswith("reconnecting")
         tick_until(d, lambda: slot.state == "idle", what="the printer to reconnect")
         assert slot.last_error is None
     finally:

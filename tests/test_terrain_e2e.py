@@ -57,7 +57,7 @@ def test_a_real_terrain_tile_at_40_mm_is_printed_once_a_person_decides(tmp_path)
             time.sleep(0.05)
         if job()["decision"]:          # outside the printable limits: a person prints it anyway
             assert job()["state"] == J.READY
-            d._do_approve(job()["id"])
+            d.control.approve(job()["id"])
         while job()["state"] not in J.FINISHED:
             assert time.monotonic() < deadline, "the tile was not printed"
             d.tick()

@@ -441,19 +441,16 @@ def test_control_estop_and_reorder_handlers(node):
     """The run loop's side: estop reaches the printer and holds it; reorder sets priorities."""
     from types import SimpleNamespace
 
-    from hostd.control import ControlMixin
+    from hostd.control import Control
 
-    class Loop(ControlMixin):
-        pass
-
-    loop = Loop()
-    loop.store, loop.config = node.store, node.config
     printer = _FakePrinter()
-    loop.slots = [SimpleNamespace(name="sim", printer=printer, paused=False, job_id=node.printing)]
+    loop = Control(node.config, node.store, [SimpleNamespace(name="sim", printer=printer,
+                                                             paused=False,
+                                                             job_id=node.printing)])
     node.store.request("estop", "sim")
     node.store.request("reorder", json.dumps([node.queued2]))
     node.store.request("estop", "nope")
-    loop._control()
+    loop.answer()
     rows = node.store.db.execute("SELECT action, ok, result FROM control ORDER BY id").fetchall()
     assert [(r[0], r[1]) for r in rows] == [("estop", 1), ("reorder", 1), ("estop", 0)]
     assert printer.estops == 1 and loop.slots[0].paused is True

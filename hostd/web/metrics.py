@@ -91,7 +91,7 @@ class _Collector:
         yield from (temp, target, up, lines, resends, starve)
 
         if v.daemon is not None:
-            from hostd.recovery import PROBLEMS
+            from hostd.outages import PROBLEMS
             now = v.daemon.problems()
             problem = GaugeMetricFamily("hostd_problem", "1 while it keeps the node from "
                                         "taking work", labels=["kind"])
