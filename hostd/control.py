@@ -7,11 +7,13 @@ id, a printer's name or (reorder) a JSON list of job ids. The run loop calls
 (``ok``, text) that ``store.wait_answer`` returns.
 
 An object handed the configuration, the job store, the printers, the plans, the farm, the
-routing rules and the endings.
+routing rules, the endings and the printers' room (which holds a printer until its bed
+is clear).
 """
 
 import logging
 import os
+import stat
 from pathlib import Path
 
 from hostd import farm as farm_mod
@@ -21,13 +23,14 @@ from hostd.errors import HostdError
 log = logging.getLogger("hostd.daemon")
 
 
-ACTIONS = ("cancel", "requeue", "approve", "pause", "resume", "estop", "reorder")
+ACTIONS = ("cancel", "requeue", "approve", "pause", "resume", "estop", "reorder", "clear")
 
 
 class Control:
     """The answers to requests from the terminal commands and the web."""
 
-    def __init__(self, config, store, slots, plans=None, farm=None, routes=None, endings=None):
+    def __init__(self, config, store, slots, plans=None, farm=None, routes=None, endings=None,
+                 printing=None):
         self.config = config
         self.store = store
         self.slots = slots
@@ -35,6 +38,7 @@ class Control:
         self.farm = farm
         self.routes = routes
         self.endings = endings
+        self.printing = printing
 
     def answer(self):
         """Carry out every pending request and write its answer."""
@@ -68,12 +72,51 @@ class Control:
         if job["state"] == J.PRINTING:
             for slot in self.slots:
                 if slot.job_id == job["id"]:
-                    slot.printer.cancel()
+                    self._cancel_print(slot, job)
             return "cancelling %s: the printer runs its cancel script" % job["id"]
         self.plans.cancel(job["id"])
         self.endings.to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
                         state=J.CANCELLED)
         return "cancelled %s" % job["id"]
+
+    def _cancel_print(self, slot, job):
+        """Cancel the print on ``slot``, unless it ended already: the page cancels the
+        printer itself before it asks (a full job database must not keep a person from
+        stopping a print), and its cancel may have ended the print by now."""
+        from hostd.printer import PrinterError
+        link_job = slot.link_job
+        try:
+            slot.printer.cancel()
+        except PrinterError:
+            result = link_job.snapshot()["result"] if link_job is not None else None
+            if result is None:
+                raise
+            if result != "cancelled":
+                raise HostdError("the print of %s ended (%s) before the cancel reached the "
+                                 "printer" % (job["name"], result),
+                                 code="control.finished") from None
+
+    def _shown(self, path, job):
+        """A path of ``job``'s as people know it: failed/NAME, else the dropped name."""
+        path = Path(path)
+        if path.parent == Path(self.config.failed_dir):
+            return "failed/" + path.name
+        return job["rel_path"]
+
+    def _regular(self, path, job, what):
+        """Whether ``path`` exists; a requeue reads only regular files from the share (a
+        symbolic link could point anywhere the daemon may read)."""
+        try:
+            mode = os.lstat(path).st_mode
+        except FileNotFoundError:
+            return False
+        if not stat.S_ISREG(mode):
+            raise HostdError("not requeued: %s of %s (%s) is not a regular file (a symbolic "
+                             "link, a folder or a device)" % (what, job["id"],
+                                                             self._shown(path, job)),
+                             code="control.not_regular",
+                             fix="put the file itself there, then requeue again")
+        return True
 
     def requeue(self, job_id):
         job = self.store.require(job_id)
@@ -81,18 +124,20 @@ class Control:
             raise HostdError("job %s is %s, not finished" % (job["id"], job["state"]),
                              code="control.active", fix="cancel it first")
         src = Path(job["input_path"])
-        if not src.exists():
-            raise HostdError("the input of %s is gone (%s)" % (job["id"], src),
+        # The sidecar it came with, or one a person wrote beside it since (NAME.error.txt
+        # says so: a changed smooth_mm or size_mm is how most failed plans are fixed).
+        side_src = Path(job["sidecar_path"] or src.with_name(src.stem + ".yaml"))
+        if not self._regular(src, job, "the input"):
+            raise HostdError("not requeued: the input of %s is gone (%s)"
+                             % (job["id"], self._shown(src, job)),
                              code="control.input_missing", fix="drop the file again")
+        has_side = self._regular(side_src, job, "the sidecar")
         folder = self.farm.claim_dir / (job["target"] or farm_mod.ROOT_TARGET)
         folder.mkdir(parents=True, exist_ok=True)
         dest = farm_mod.unique_path(folder / src.name)
         os.rename(src, dest)
-        # The sidecar it came with, or one a person wrote beside it since (NAME.error.txt
-        # says so: a changed smooth_mm or size_mm is how most failed plans are fixed).
-        side_src = Path(job["sidecar_path"] or src.with_name(src.stem + ".yaml"))
         side = None
-        if side_src.exists():
+        if has_side:
             side = dest.with_name(dest.stem + ".yaml")
             os.rename(side_src, side)
         err = src.with_name(src.stem + ".error.txt")
@@ -104,9 +149,10 @@ class Control:
                              finished_at=None)
         # The sidecar may have changed (a profile, copies, priority): read it again, as
         # intake does, so the job is planned with what the file now says.
-        problem = self._retarget(self.store.get(job["id"]), side)
-        if problem:
-            return "not requeued: %s" % problem
+        if self._retarget(self.store.get(job["id"]), side):
+            # Told as the job's failure tells it: by the names people dropped.
+            raise HostdError("not requeued: %s" % self.store.get(job["id"])["error"],
+                             code="control.requeue_refused")
         return "requeued %s" % job["id"]
 
     def approve(self, job_id):
@@ -139,6 +185,18 @@ class Control:
             self.endings.fail(job, reason, "job.no_printer")
             return reason
         return None
+
+    def clear(self, name):
+        """A person says the bed of printer ``name`` is clear: it takes the next job."""
+        slot = self._slot(name)
+        if slot.job_id is not None:
+            raise HostdError("printer %s is printing %s: its bed is not clear"
+                             % (name, slot.job_id), code="control.printing",
+                             fix="wait for the print to end, or cancel it first")
+        if slot.held is None:
+            return "%s does not wait for its bed to be cleared" % name
+        self.printing.clear(slot)
+        return "bed of %s is clear: it takes the next job" % name
 
     def pause(self, name):
         slot = self._slot(name)

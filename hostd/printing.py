@@ -1,5 +1,12 @@
 """The printers' room: ready jobs handed to idle printers, prints followed to their end, and
-a printer held when a print ends in a way a person must look at.
+a printer held after every print until a person says its bed is clear.
+
+After a print, finished or not, the part (or what is left of it) is on the bed: the next
+job must not start on top of it. So the printer waits (``slot.held`` says why, the store
+keeps it across a restart) until a person says the bed is clear, unless its profile takes
+the finished part off by itself (``bed_clear: auto`` with ``gcode.clear_bed``, and the
+print's G-code ends with it). A print that did not finish always waits for a person; one
+that failed on the printer also pauses it.
 
 An object handed the configuration, the job store, the printers (:class:`hostd.slot.Slot`),
 the routing rules, the endings and the outages. Each printer's link streams on a thread
@@ -21,6 +28,7 @@ log = logging.getLogger("hostd.daemon")
 # to the WAL, and 20 a second were 80-90 kB/s of writes on a host's SD card.
 PROGRESS_S = 2.0
 RECONNECT_S = 5.0
+TAIL_BYTES = 64 * 1024     # where a plan's G-code ends with its clear_bed block, if it has one
 
 
 class Printing:
@@ -43,9 +51,11 @@ class Printing:
         """Take each printer's hold from the store and connect it in the background."""
         rows = self.store.printers()
         for slot in self.slots:
-            # A hold outlives a restart: the failed print is still on that bed.
-            slot.held = rows.get(slot.name, {}).get("held")
-            slot.paused = slot.held is not None
+            # A hold outlives a restart: the print is still on that bed. A pause came with
+            # it only after a fault (see hold).
+            row = rows.get(slot.name, {})
+            slot.held = row.get("held")
+            slot.paused = slot.held is not None and bool(row.get("paused", 1))
             self.store.set_printer(slot.name, state="connecting", paused=int(slot.paused),
                                    job_id=None)
             slot.connect_async()
@@ -95,6 +105,7 @@ class Printing:
             self.unspool(job["id"])
             return
         slot.job_id = job["id"]
+        slot.clears_bed = self._clears_bed(slot, gcode)
         self.store.set_state(job["id"], J.PRINTING, "printing on %s (copy %d of %d)%s" % (
             slot.name, job["copies_done"] + 1, job["copies"],
             "; " + rate.note if rate.note else ""), printer=slot.name,
@@ -102,6 +113,27 @@ class Printing:
         self.store.set_printer(slot.name, job_id=job["id"])
         log.info("job %s: printing %s on %s (copy %d of %d)", job["id"], job["name"], slot.name,
                  job["copies_done"] + 1, job["copies"])
+
+    def _clears_bed(self, slot, gcode):
+        """Whether the print of ``gcode`` takes its part off the bed by itself: the printer's
+        profile says ``bed_clear: auto`` and the file ends with that profile's clear_bed
+        G-code (a plan made before the profile said so does not)."""
+        from pipeline.errors import PipelineError
+        from pipeline.profiles.profile import CLEAR_BED_MARK, load_profile
+        try:
+            profile = load_profile(slot.config.profile)
+        except PipelineError:
+            return False
+        if profile.bed_clear != "auto":
+            return False
+        block = CLEAR_BED_MARK + "\n" + profile.render_gcode("clear_bed").rstrip("\n") + "\n"
+        try:
+            with open(gcode, "rb") as f:
+                f.seek(max(0, os.fstat(f.fileno()).st_size - TAIL_BYTES - len(block)))
+                tail = f.read().decode("utf-8", "replace")
+        except OSError:
+            return False
+        return block in tail
 
     def _spool(self, job, gcode):
         """A copy of the G-code on the local disk to print from: the outbox is often on the
@@ -158,9 +190,10 @@ class Printing:
         if snap["result"] == "done":
             return self._done(slot, job, snap)
         if snap["result"] == "cancelled":
-            reason = "The print of %s was %s." % (
-                job["name"], snap["error"] or "cancelled by a person (hostd cancel)")
+            how = snap["error"] or "cancelled by a person (hostd cancel)"
+            reason = "The print of %s was %s." % (job["name"], how)
             log.info("job %s: %s", job["id"], reason)
+            self.wait_for_person(slot, "the print of %s was %s" % (job["name"], how))
             return self.endings.filing(job, reason, state=J.CANCELLED)
         error = snap["error"] or slot.printer.last_error
         self.hold(slot, "the print of %s ended abnormally (%s)" % (job["name"], error))
@@ -171,6 +204,10 @@ class Printing:
 
     def _done(self, slot, job, snap):
         copies = job["copies_done"] + 1
+        if not slot.clears_bed:
+            self.wait_for_person(slot, "the print of %s finished%s" % (
+                job["name"], " (copy %d of %d)" % (copies, job["copies"])
+                if job["copies"] > 1 else ""))
         if copies < job["copies"]:
             return lambda: self.store.set_state(job["id"], J.READY, "copy %d printed" % copies,
                                                 copies_done=copies, progress=1.0)
@@ -191,6 +228,14 @@ class Printing:
 
     # -- holding -------------------------------------------------------------------------------
 
+    def wait_for_person(self, slot, reason):
+        """Start nothing on ``slot`` until a person says its bed is clear (:meth:`clear`)."""
+        slot.held = "%s: take it off the bed, then say the bed is clear (Bed is clear on the " \
+                    "page, or `hostd clear %s`)" % (reason, slot.name)
+        with self.outages.full_ok():
+            self.store.set_printer(slot.name, held=slot.held)
+        log.info("printer %s waits for a person: %s", slot.name, slot.held)
+
     def hold(self, slot, reason):
         """Start nothing on ``slot`` until a person has looked at its bed and resumed it."""
         slot.paused = True
@@ -198,6 +243,14 @@ class Printing:
         with self.outages.full_ok():
             self.store.set_printer(slot.name, paused=1, held=slot.held)
         log.warning("printer %s held: %s", slot.name, slot.held)
+
+    def clear(self, slot):
+        """A person says ``slot``'s bed is clear: it takes the next job (a pause that came
+        with a hold goes with it)."""
+        slot.held = None
+        slot.paused = False
+        self.store.set_printer(slot.name, paused=0, held=None)
+        log.info("printer %s: a person says its bed is clear", slot.name)
 
     def interrupt(self, slot, reason):
         job = self.store.get(slot.job_id)

@@ -32,7 +32,10 @@ class Slot:
         self.ending = None           # records a finished print once the store takes it
         self.progress_due = 0.0      # when its progress is next written to the store
         self.paused = False          # operator pause: no new jobs
-        self.held = None             # why a print ended abnormally here, until a person resumes
+        # Why the printer waits for a person (a print ended on its bed: finished, cancelled
+        # or failed), until one says the bed is clear; None: the bed is known clear.
+        self.held = None
+        self.clears_bed = False      # the print running ends by taking its part off the bed
         self.error = None
         self._thread = None
 
@@ -71,7 +74,8 @@ class Slot:
         return None
 
     def available(self):
-        return self.job_id is None and not self.paused and self.state == "idle"
+        return self.job_id is None and not self.paused and self.held is None \
+            and self.state == "idle"
 
     def close(self):
         if self.printer is not None:

@@ -151,10 +151,43 @@ def test_prints_total_never_goes_down_after_a_requeue(live):
     def cancelled():
         m = _samples(live.client.get("/metrics").get_data(as_text=True))
         return m[("hostd_prints_total", (("result", "cancelled"),))]
+    live.store.set_state(live.printing, "cancelled", "cancelled by a person")
+    assert cancelled() == 1
+    live.store.set_state(live.printing, "queued", "requeued by a person")
+    assert cancelled() == 1
+
+
+def test_prints_total_counts_cancelled_prints_not_cancelled_queued_jobs(live):
+    """A job cancelled in the queue never printed: it is no cancelled print."""
+    def cancelled():
+        m = _samples(live.client.get("/metrics").get_data(as_text=True))
+        return m[("hostd_prints_total", (("result", "cancelled"),))]
     live.store.set_state(live.queued, "cancelled", "cancelled by a person")
+    assert cancelled() == 0
+    live.store.set_state(live.printing, "cancelled", "the print was cancelled by a person")
     assert cancelled() == 1
-    live.store.set_state(live.queued, "queued", "requeued by a person")
+    # printed once, requeued, cancelled again before it printed: still one print
+    live.store.set_state(live.printing, "queued", "requeued by a person")
+    live.store.set_state(live.printing, "cancelled", "cancelled by a person")
     assert cancelled() == 1
+
+
+def test_metrics_count_printers_waiting_for_a_person(tmp_path):
+    node = Node(tmp_path)
+    daemon = fake_daemon(node, "idle", False)
+    app = create_app(node.config, daemon=daemon)
+
+    def waiting():
+        m = _samples(app.test_client().get("/metrics").get_data(as_text=True))
+        return m[("hostd_printers_waiting_for_person", ())]
+    assert waiting() == 0
+    daemon.slots[0].held = "the print of dome.npy finished: take it off the bed"
+    assert waiting() == 1
+    status = app.test_client().get("/api/status").json
+    assert status["waiting_for_person"] == ["sim"]
+    assert status["printers"][0]["waiting_for_person"] is True
+    assert "dome.npy finished" in status["printers"][0]["held"]
+    node.store.close()
 
 
 def test_page_shows_live_values(live):

@@ -1,7 +1,8 @@
 """Terminal commands over the job store of a running daemon.
 
 ``hostd jobs [--state S]``, ``hostd job ID``, ``hostd requeue ID``, ``hostd cancel ID``,
-``hostd pause PRINTER``, ``hostd resume PRINTER``. Actions go to the daemon through the
+``hostd pause PRINTER``, ``hostd resume PRINTER``, ``hostd clear PRINTER`` (its bed is clear: after
+every print a printer waits for a person to say so). Actions go to the daemon through the
 store's control table; without a running daemon they are refused (listing still works).
 
 Exit status: 0 done; 1 the daemon refused or did not answer; 2 nothing was asked of the
@@ -39,7 +40,9 @@ def add_parser(sub):
                                 ("approve", "id", "print a plan outside its profile's "
                                                   "printable limits anyway"),
                                 ("pause", "printer", "pause a printer (it takes no new jobs)"),
-                                ("resume", "printer", "resume a paused printer")):
+                                ("resume", "printer", "resume a paused printer"),
+                                ("clear", "printer", "say the printer's bed is clear (it waits "
+                                                     "for this after every print)")):
         p = sub.add_parser(action, help=help_)
         _common(p)
         p.add_argument("target", metavar=what.upper())

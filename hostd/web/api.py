@@ -26,6 +26,8 @@ NO_TOKEN = ("actions are off on this node: no token is configured. Run `hostd to
             "-c hostd.yaml`; or set `web: {token: SOME-LONG-SECRET}` in the hostd.yaml it runs "
             "with and restart it")
 JOB_ACTIONS = ("pause", "resume", "cancel", "requeue", "approve")
+# ``clear``: a person says the printer's bed is clear (after every print it waits for one).
+PRINTER_ACTIONS = ("estop", "pause", "resume", "clear")
 
 
 def view():
@@ -89,8 +91,14 @@ def job_action(job_id, action):
             return 409, dict(ok=False, error="job %s is %s, not printing" % (job_id, job["state"]))
         return ask_daemon(action, job["printer"])
     if action == "cancel" and job["state"] == J.PRINTING:
-        return _printer_first(action, job["id"], lambda slot: slot.job_id == job["id"],
-                              lambda slot: slot.printer.cancel())
+        status, body = _printer_first(action, job["id"], lambda slot: slot.job_id == job["id"],
+                                      lambda slot: slot.printer.cancel())
+        # The printer's cancel above may have ended the print, and the run loop recorded
+        # it, before the loop read the request: then the request finds it cancelled.
+        if status == 409 and (v.job(job_id) or {}).get("state") == J.CANCELLED:
+            return 200, dict(ok=True, result="cancelled %s: the printer ran its cancel script"
+                                             % job["id"])
+        return status, body
     return ask_daemon(action, job["id"])
 
 
@@ -313,8 +321,8 @@ def job_post(job_id, action):
 @bp.post("/api/printers/<name>/<action>")
 def printer_post(name, action):
     require_token()
-    if action not in ("estop", "pause", "resume"):
-        return error(404, "unknown action %s; use estop, pause or resume" % action)
+    if action not in PRINTER_ACTIONS:
+        return error(404, "unknown action %s; use %s" % (action, ", ".join(PRINTER_ACTIONS)))
     return _reply(printer_action(name, action))
 
 

@@ -2,9 +2,12 @@
 
 - ``hostd_jobs{state}``                               jobs per state (gauge)
 - ``hostd_prints_total{result}``                      jobs that ended: done, failed, cancelled,
-  interrupted (counted from the store's events, so a requeue never takes one back)
+  interrupted (counted from the store's events, so a requeue never takes one back);
+  cancelled counts prints that had started, not jobs cancelled in the queue
 - ``hostd_temperature_celsius{printer,heater}``       and ``hostd_temperature_target_celsius``
 - ``hostd_printer_up{printer,state}``                 1 for the printer's current state
+- ``hostd_printers_waiting_for_person``              printers that start nothing until a
+  person says their bed is clear (after every print unless the profile clears it itself)
 - ``hostd_serial_lines_sent_total{printer}``, ``hostd_serial_resends_total{printer}``
 - ``hostd_planner_starvation_seconds_total{printer}`` time the printer's move planner ran
   dry between moves (known for the built-in simulator only; a real Marlin does not say)
@@ -75,7 +78,8 @@ class _Collector:
         starve = CounterMetricFamily("hostd_planner_starvation_seconds",
                                      "Seconds the printer's move planner ran dry between moves",
                                      labels=["printer"])
-        for p in v.printers():
+        printers = v.printers()
+        for p in printers:
             for heater, t in p["temperatures"].items():
                 if t.get("current") is not None:
                     temp.add_metric([p["name"], heater], t["current"])
@@ -88,7 +92,10 @@ class _Collector:
                 resends.add_metric([p["name"]], p["resends"] or 0)
             if p["starvation_s"] is not None:
                 starve.add_metric([p["name"]], p["starvation_s"])
-        yield from (temp, target, up, lines, resends, starve)
+        waiting = GaugeMetricFamily("hostd_printers_waiting_for_person", "Printers that start "
+                                    "nothing until a person says their bed is clear")
+        waiting.add_metric([], sum(1 for p in printers if p["waiting_for_person"]))
+        yield from (temp, target, up, lines, resends, starve, waiting)
 
         if v.daemon is not None:
             from hostd.outages import PROBLEMS

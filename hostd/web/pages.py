@@ -73,7 +73,7 @@ def add_form_actions(app, destructive):
 
     @app.post("/actions/printers/<name>/<action>")
     def form_printer(name, action):
-        if action not in ("estop", "pause", "resume"):
+        if action not in api.PRINTER_ACTIONS:
             abort(404)
         return form_action(destructive, "printer", name, action,
                            lambda: api.printer_action(name, action))

@@ -264,10 +264,14 @@ class NodeView:
 
     def endings(self):
         """How many times jobs ended in each finished state, ever: a counter, read from
-        the events (a requeued job leaves its state, never its history)."""
+        the events (a requeued job leaves its state, never its history). A cancel counts
+        only where a print had started (its job's state before it was printing)."""
+        states = ", ".join("?" * len(J.STATES))
         rows = self.store.db.execute(
-            "SELECT kind, COUNT(*) FROM events WHERE kind IN (?, ?, ?, ?) GROUP BY kind",
-            J.FINISHED)
+            "SELECT e.kind, COUNT(*) FROM events e WHERE e.kind IN (?, ?, ?, ?) AND (e.kind != ? "
+            "OR (SELECT p.kind FROM events p WHERE p.job_id = e.job_id AND p.id < e.id AND "
+            "p.kind IN (%s) ORDER BY p.id DESC LIMIT 1) = ?) GROUP BY e.kind" % states,
+            J.FINISHED + (J.CANCELLED,) + tuple(J.STATES) + (J.PRINTING,))
         return {r[0]: r[1] for r in rows}
 
     def jobs(self, state=None, limit=200):
@@ -383,6 +387,8 @@ class NodeView:
              "temperatures": temps, "lines_sent": stats.get("lines_sent"),
              "resends": stats.get("resends"), "starvation_s": starvation, "error": error,
              "held": held,
+             # The bed is not known clear: nothing starts here until a person says it is.
+             "waiting_for_person": held is not None,
              # A printer that is not answering reports nothing new: its readings are old.
              "temperatures_stale": page_state(state, paused) in ("error", "disconnected"),
              "job": self.job_info(job, live) if job else None}
@@ -398,7 +404,8 @@ class NodeView:
         queue = [self.job_info(j) for j in self.queue()]
         recent = [self.job_info(j) for j in self.recent()]
         # Changes when a job starts, ends or moves: the page reloads then, else it patches.
-        sig = ";".join([",".join("%s=%s" % (p["name"], p["job"]["id"] if p["job"] else "")
+        sig = ";".join([",".join("%s=%s%s" % (p["name"], p["job"]["id"] if p["job"] else "",
+                                              "!" if p["held"] else "")
                                  for p in printers),
                         ",".join("%s:%s" % (j["id"], j["state"]) for j in queue),
                         ",".join("%s:%s" % (j["id"], j["state"]) for j in recent[:5])])
@@ -409,6 +416,7 @@ class NodeView:
         return {"node_id": self.config.node_id, "version": __version__, "time": time.time(),
                 "daemon": self.daemon is not None, "problem": problem, "printers": printers,
                 "queue": queue, "recent": recent, "signature": sig, "drop_folder": dropped,
+                "waiting_for_person": [p["name"] for p in printers if p["waiting_for_person"]],
                 "counts": self.counts(), "token_configured": bool(self.config.web.token)}
 
     def drop_folder(self):

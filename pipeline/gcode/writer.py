@@ -96,7 +96,7 @@ class GcodeSettings:
             retract_mm_s=float(profile.retraction.speed_mm_s),
             z_hop_mm=float(profile.retraction.z_hop_mm),
             relative_e=profile.extrusion == "relative",
-            start_gcode=profile.render_gcode("start"), end_gcode=profile.render_gcode("end"),
+            start_gcode=profile.render_gcode("start"), end_gcode=profile.end_gcode(),
             arc_tolerance_mm=float(profile.toolpath.arc_tolerance_mm),
             chord_tolerance_mm=float(profile.toolpath.chord_tolerance_mm),
             baud=int(profile.serial.baud),

@@ -28,6 +28,10 @@ from pipeline.profiles.shrink import ShrinkCurve
 # of shrink) before we clamp them to it.
 _SHRINK_TOLERANCE = 5e-3
 
+# The line before `gcode.clear_bed` in a plan's G-code: a finished print whose file has it
+# (and no other) leaves its bed clear by itself.
+CLEAR_BED_MARK = "; hostd clear_bed: the part leaves the bed by itself"
+
 # Placeholders the G-code templates may use; values come from Profile.gcode_vars().
 GCODE_PLACEHOLDERS = ("hotend_c", "bed_c", "bed_x_mm", "bed_y_mm", "max_z_mm", "nozzle_mm",
                       "filament_mm", "path_width_mm", "retract_mm", "retract_f", "z_hop_mm",
@@ -103,6 +107,9 @@ class GcodeTemplates:
     cancel: str = _str("M104 S0\nM140 S0\nM107\nG91\nG1 Z10 F600\nG90\nM84\n", multiline=True)
     pause: str = _str("G91\nG1 Z10 F600\nG90\n", multiline=True)
     resume: str = _str("G91\nG1 Z-10 F600\nG90\n{e_mode}\n", multiline=True)
+    # Run at the end of every finished print when `bed_clear: auto`: the moves that take
+    # the part off the bed by themselves (a belt, a sweep of the gantry).
+    clear_bed: str = _str("", multiline=True)
 
 
 @dataclass(frozen=True)
@@ -242,6 +249,9 @@ class Profile:
     temperatures_c: Temperatures = _section(Temperatures)
     retraction: Retraction = _section(Retraction)
     extrusion: str = _str("relative", choices=("relative", "absolute"))
+    # Who clears the bed after a print: `person` (the printer waits until one says the bed
+    # is clear) or `auto` (gcode.clear_bed takes the finished part off by itself).
+    bed_clear: str = _str("person", choices=("person", "auto"))
     serial: Serial = _section(Serial)
     gcode: GcodeTemplates = _section(GcodeTemplates)
     mesh: MeshParams = _section(MeshParams)
@@ -272,6 +282,14 @@ class Profile:
     def render_gcode(self, which):
         """The ``gcode.<which>`` template with placeholders filled: str."""
         return getattr(self.gcode, which).format(**self.gcode_vars())
+
+    def end_gcode(self):
+        """What a finished print ends with: ``gcode.end``, then ``gcode.clear_bed`` under
+        :data:`CLEAR_BED_MARK` when the bed clears by itself (``bed_clear: auto``)."""
+        end = self.render_gcode("end")
+        if self.bed_clear != "auto":
+            return end
+        return end.rstrip("\n") + "\n" + CLEAR_BED_MARK + "\n" + self.render_gcode("clear_bed")
 
 
 def _fmt(v):
@@ -474,7 +492,17 @@ def parse_profile(data, source=None):
     gcode = vals.get("gcode", GcodeTemplates())
     for f in fields(GcodeTemplates):
         _check_placeholders(getattr(gcode, f.name), "gcode." + f.name, src)
+    if vals.get("bed_clear") == "auto" and not _has_commands(gcode.clear_bed):
+        raise _err("bed_clear is auto but gcode.clear_bed has no G-code: the next print would "
+                   "start on the part before", "profile.bed_clear", src, "bed_clear",
+                   "add gcode.clear_bed: the G-code that takes the finished part off the bed "
+                   "(a belt, a sweep), or set bed_clear: person (a person says the bed is clear)")
     return Profile(**vals, source=src or "", raw=raw, warnings=tuple(warnings))
+
+
+def _has_commands(text):
+    """Whether a G-code snippet has a command besides comments and blank lines."""
+    return any(line.split(";", 1)[0].strip() for line in text.splitlines())
 
 
 def _check_placeholders(template, key, src):
