@@ -185,3 +185,80 @@ def test_auto_without_clear_gcode_is_a_profile_error(tmp_path, clear_bed):
     with pytest.raises(InvalidProfile) as err:
         load_profile(path)
     assert err.value.code == "profile.bed_clear" and "gcode.clear_bed" in err.value.text()
+
+
+def test_a_web_cancel_of_a_printing_job_answers_that_it_worked(tmp_path, monkeypatch):
+    """The page cancels the printer itself, then asks the run loop to record it; a loop
+    busy for a moment finds the print already ended by that cancel. The answer is that
+    the cancel worked (it did), not an internal error; then the printer waits, and the
+    API's clear releases it."""
+    from daemon_helpers import ticking_daemon
+    from hostd.web.app import create_app
+    auth = {"Authorization": "Bearer s3cret-token"}
+    with ticking_daemon(tmp_path, 0.1, sim="hotend_tau_s=1&bed_tau_s=1",
+                        token="s3cret-token") as d:
+        client = create_app(d.config, store=d.store, daemon=d).test_client()
+        reader = J.JobStore(d.config.db_path, create=False)
+        write_dome(d.config.drop_dir / "first.npy")
+        deadline = time.monotonic() + 120
+        while not reader.list(J.PRINTING):
+            assert time.monotonic() < deadline, "no print started"
+            time.sleep(0.05)
+        [job] = reader.list(J.PRINTING)
+        real = d.control.answer
+
+        def busy_round():
+            time.sleep(1.0)      # a slow round of the loop: the printer's cancel ends meanwhile
+            real()
+        monkeypatch.setattr(d.control, "answer", busy_round)
+        r = client.post("/api/jobs/%s/cancel" % job["id"], headers=auth)
+        assert r.status_code == 200 and r.json["ok"] is True, r.json
+        monkeypatch.undo()
+        while reader.get(job["id"])["state"] != J.CANCELLED:
+            assert time.monotonic() < deadline, "the cancel was not recorded"
+            time.sleep(0.05)
+        status = client.get("/api/status").json
+        assert status["waiting_for_person"] == ["p1"]
+        assert "first.npy was cancelled" in status["printers"][0]["held"]
+        r = client.post("/api/printers/p1/clear", headers=auth)
+        assert r.status_code == 200 and r.json["result"].startswith("bed of p1 is clear"), r.json
+        assert client.get("/api/status").json["waiting_for_person"] == []
+        reader.close()
+
+
+def _failed_job(d):
+    (d.config.drop_dir / "broken.png").write_bytes(b"this is not a picture")
+    tick_until(d, lambda: d.store.list(J.FAILED), what="the junk to fail")
+    return d.store.list(J.FAILED)[0]
+
+
+def test_a_refused_requeue_is_a_refusal_told_by_the_dropped_names(tmp_path):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        job = _failed_job(d)
+        (d.config.failed_dir / "broken.yaml").write_text("smooth_mm: [1, 2]\n")
+        ok, text = _ask(d, "requeue", job["id"])
+        assert not ok and text.startswith("not requeued: ")
+        assert "broken.yaml" in text and str(tmp_path) not in text, text
+        assert d.store.get(job["id"])["state"] == J.FAILED
+        assert (d.config.failed_dir / "broken.png").exists()
+    finally:
+        d.shutdown()
+
+
+def test_a_requeue_does_not_follow_a_symlinked_sidecar(tmp_path):
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        job = _failed_job(d)
+        secret = tmp_path / "secret.yaml"
+        secret.write_text("smooth_mm: 2\n")
+        side = d.config.failed_dir / "broken.yaml"
+        side.symlink_to(secret)
+        ok, text = _ask(d, "requeue", job["id"])
+        assert not ok and "failed/broken.yaml" in text and "not a regular file" in text, text
+        assert str(tmp_path) not in text
+        assert side.is_symlink() and (d.config.failed_dir / "broken.png").exists()
+        assert d.store.get(job["id"])["state"] == J.FAILED
+        assert not list(d.farm.claim_dir.rglob("broken*"))
+    finally:
+        d.shutdown()
