@@ -20,9 +20,9 @@ import pytest
 
 from daemon_helpers import fill_store as fill
 from daemon_helpers import Pings, in_process_daemon, make_room, ticking_daemon, write_dome
-from hostd import daemon as daemon_mod
 from hostd import jobs as J
-from hostd import recovery, watchdog
+from hostd import outages, watchdog
+from hostd import printing as printing_mod
 from hostd.errors import HostdError
 from hostd.web.app import create_app
 
@@ -66,7 +66,7 @@ def start_print(d, tmp_path, name="dome.npy"):
 @pytest.mark.slow
 def test_a_full_store_keeps_the_print_going_and_records_it_once_there_is_room(
         tmp_path, monkeypatch, caplog):
-    monkeypatch.setattr(recovery, "FULL_RETRY_S", 0.5)
+    monkeypatch.setattr(outages, "FULL_RETRY_S", 0.5)
     # Slow enough that the print is still running when the store fills.
     d = in_process_daemon(tmp_path, time_scale=0.008)
     config, pings = d.config, d.notify
@@ -124,9 +124,9 @@ def test_progress_is_written_every_few_seconds_not_every_tick(tmp_path):
         run_until(d, lambda: d.store.get(job_id)["state"] == J.DONE, timeout_s=120,
                   what="the print to end")
         seconds = time.monotonic() - started
-        assert seconds > 2 * daemon_mod.PROGRESS_S, "the print must outlast a few writes"
-        assert 2 <= len(writes) <= seconds / daemon_mod.PROGRESS_S + 2, (len(writes), seconds)
-        assert min(b - a for a, b in zip(writes, writes[1:])) >= 0.9 * daemon_mod.PROGRESS_S
+        assert seconds > 2 * printing_mod.PROGRESS_S, "the print must outlast a few writes"
+        assert 2 <= len(writes) <= seconds / printing_mod.PROGRESS_S + 2, (len(writes), seconds)
+        assert min(b - a for a, b in zip(writes, writes[1:])) >= 0.9 * printing_mod.PROGRESS_S
     finally:
         d.shutdown()
 
