@@ -75,8 +75,8 @@ class Control:
                     self._cancel_print(slot, job)
             return "cancelling %s: the printer runs its cancel script" % job["id"]
         self.plans.cancel(job["id"])
-        self.endings.to_failed(job, "The job %s was cancelled by a person (hostd cancel)." % job["name"],
-                        state=J.CANCELLED)
+        self.endings.to_failed(job, "The job %s was cancelled by a person (hostd cancel)."
+                               % job["name"], state=J.CANCELLED)
         return "cancelled %s" % job["id"]
 
     def _cancel_print(self, slot, job):

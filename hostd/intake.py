@@ -1,7 +1,8 @@
 """Intake: complete files in the drop folder become this node's jobs.
 
 An object handed the configuration, the job store, the watcher, the farm, the routing rules,
-the printers and the endings (how a job that cannot be taken fails). A file is claimed (renamed into this node's claim folder) and recorded with its sidecar's options
+the printers and the endings (how a job that cannot be taken fails). A file is claimed
+(renamed into this node's claim folder) and recorded with its sidecar's options
 and the profile it will be planned with; a node sharing the drop folder with other live
 nodes takes only what it can start soon.
 
@@ -119,8 +120,8 @@ class Intake:
                     rel_path, type(exc).__name__, exc, self.config.node_id))
         job = next((j for j in self.store.list(J.ACTIVE) if j["input_path"] == str(path)), None)
         if job is not None:
-            return self.endings.fail(job, text + ". If a requeue fails the same way, report it with "
-                              "that log", "job.intake_failed")
+            return self.endings.fail(job, text + ". If a requeue fails the same way, report it "
+                                     "with that log", "job.intake_failed")
         archive_failed(path, side, self.config.failed_dir, name, text + ".\n\nTo try again, "
                        "move the file (and its sidecar) back into the drop folder; if it fails "
                        "the same way, report it with that log.")

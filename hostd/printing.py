@@ -94,7 +94,8 @@ class Printing:
         from hostd.printer import PrinterError
         gcode = self.gcode(job)
         if gcode is None:
-            self.store.set_state(job["id"], J.QUEUED, "G-code missing from the outbox: planning again")
+            self.store.set_state(job["id"], J.QUEUED,
+                                 "G-code missing from the outbox: planning again")
             return
         rate = job_feed(gcode, slot.config.baud)
         try:

@@ -60,6 +60,20 @@ def write_config(folder, node_id="n1", printers=None, share=None, **extra):
     return path
 
 
+def belt_profile(folder, name="belt-0.5mm"):
+    """A profile like generic-0.5mm for a printer that takes the finished part off its bed
+    by itself (``bed_clear: auto``): prints follow each other without a person. Written into
+    ``folder``; returns the environment that makes hostd find it (``HOSTD_PROFILES``)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    text = (ROOT / "profiles" / "generic-0.5mm.yaml").read_text()
+    text = text.replace("name: generic-0.5mm", "name: " + name).replace(
+        "bed_clear: person", "bed_clear: auto").replace(
+        "gcode:\n", "gcode:\n  clear_bed: |\n    G1 Y{bed_y_mm} F3000 ; the belt carries the part off\n", 1)
+    (folder / (name + ".yaml")).write_text(text)
+    return {"HOSTD_PROFILES": str(folder)}
+
+
 def hostd(*args, timeout=60, **kw):
     return subprocess.run([sys.executable, "-m", "hostd", *map(str, args)], cwd=ROOT,
                           capture_output=True, text=True, timeout=timeout, **kw)

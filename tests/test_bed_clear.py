@@ -130,7 +130,8 @@ def test_clear_is_refused_while_the_printer_prints_and_harmless_when_nothing_wai
 
 def _auto_profile(folder, clear_bed):
     text = (ROOT / "profiles" / "generic-0.5mm.yaml").read_text()
-    text = text.replace("name: generic-0.5mm", "name: belt-0.5mm") + "bed_clear: auto\n"
+    text = text.replace("name: generic-0.5mm", "name: belt-0.5mm").replace(
+        "bed_clear: person", "bed_clear: auto")
     if clear_bed is not None:
         text = text.replace("gcode:\n", "gcode:\n  clear_bed: |\n%s" % "".join(
             "    %s\n" % line for line in clear_bed.splitlines()), 1)

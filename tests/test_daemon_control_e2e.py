@@ -146,6 +146,13 @@ def test_sidecar_copies_print_the_plan_that_many_times(tmp_path, dome, pty_sim):
     src.with_name("two.yaml").write_text(side + "copies: 2\n")
     with daemon(cfg) as d:
         drop(src, tmp_path / "share" / "drop", "two.npy")
+        # Between two copies the printer waits until a person has taken the first off.
+        wait_for(lambda: jobs(cfg) and jobs(cfg)[0]["copies_done"] == 1, timeout=120, proc=d,
+                 what="the first copy printed")
+        time.sleep(1.0)
+        assert jobs(cfg)[0]["state"] == "ready" and jobs(cfg)[0]["copies_done"] == 1
+        r = hostd("clear", "p1", "-c", cfg)
+        assert r.returncode == 0, r.stderr
         wait_for(lambda: states(cfg).get("two.npy") == "done", timeout=120, proc=d,
                  what="two copies printed")
         assert d.stop() == 0

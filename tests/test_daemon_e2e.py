@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon_helpers import (all_files, cli_jobs, daemon, drop, gcode_commands, hostd, jobs,
-                            states, wait_for, write_config)
+from daemon_helpers import (all_files, belt_profile, cli_jobs, daemon, drop, gcode_commands,
+                            hostd, jobs, states, wait_for, write_config)
 from hostd.feed import job_feed
 from printer_helpers import job_commands
 
@@ -16,10 +16,12 @@ from printer_helpers import job_commands
 @pytest.mark.slow
 def test_three_files_one_invalid(tmp_path, dome, pty_sim):
     sim, port = pty_sim
-    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+    # A printer that clears its own bed: the two prints follow each other without a person.
+    env = belt_profile(tmp_path / "profiles")
+    cfg = write_config(tmp_path, printers=[{"name": "p1", "profile": "belt-0.5mm",
                                             "port": port, "baud": 250000}])
     share = tmp_path / "share"
-    with daemon(cfg) as d:
+    with daemon(cfg, env) as d:
         drop(dome, share / "drop", "first.npy")
         drop(dome, share / "drop", "second.npy")
         (share / "drop" / "broken.png").write_bytes(b"this is not a picture")
@@ -131,10 +133,14 @@ def test_runaway_plan_fails_its_job_only(tmp_path, dome):
 @pytest.mark.slow
 def test_two_daemons_share_one_drop_folder(tmp_path, dome):
     share = tmp_path / "share"
-    cfg_a = write_config(tmp_path / "a", node_id="a", share=share)
-    cfg_b = write_config(tmp_path / "b", node_id="b", share=share)
+    # Printers that clear their own beds: ten prints follow each other without a person.
+    env = belt_profile(tmp_path / "profiles")
+    belt = [{"name": "p1", "profile": "belt-0.5mm",
+             "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0", "baud": 2000000}]
+    cfg_a = write_config(tmp_path / "a", node_id="a", share=share, printers=belt)
+    cfg_b = write_config(tmp_path / "b", node_id="b", share=share, printers=belt)
     names = ["f%02d.npy" % i for i in range(10)]
-    with daemon(cfg_a) as a, daemon(cfg_b) as b:
+    with daemon(cfg_a, env) as a, daemon(cfg_b, env) as b:
         status = share / "drop" / ".hostd" / "nodes"
         wait_for(lambda: {p.stem for p in status.glob("*.json")} == {"a", "b"}, timeout=30,
                  what="both nodes up", proc=a)

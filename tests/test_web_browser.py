@@ -8,6 +8,7 @@ and a screenshot is kept in test-artifacts/.
 import os
 import shutil
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -137,6 +138,63 @@ def test_print_anyway_in_headless_chromium(tmp_path):
             assert time.monotonic() < deadline, "not approved:\n" + d.output()[-3000:]
             time.sleep(0.3)
         assert job()["decision"] is None and job()["state"] in ("printing", "done")
+    finally:
+        if browser is not None:
+            browser.close()
+        assert d.stop() == 0, d.output()[-3000:]
+
+
+def test_bed_is_clear_in_headless_chromium(tmp_path):
+    """After a print the printer waits: its card says why and has Bed is clear; a person
+    clicks it (token kept in the tab) and the next job prints; after that one it waits
+    again, and `hostd clear` from the terminal releases it."""
+    from daemon_helpers import hostd
+    _requirements()
+    port = free_port()
+    fast = "sim://?time_scale=0&advanced_ok=1&boot_s=0"
+    config = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
+                                               "port": fast, "baud": 2000000}],
+                          web={"host": "127.0.0.1", "port": port, "token": TOKEN})
+    base = "http://127.0.0.1:%d" % port
+    d = DaemonProcess(config)
+    browser = None
+
+    def states():
+        _, body = get_json(base + "/api/jobs")
+        return sorted(j["state"] for j in body["jobs"])
+
+    def wait(predicate, what, timeout=120):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, "%s:\n%s" % (what, d.output()[-3000:])
+            assert d.proc.poll() is None, d.output()[-3000:]
+            time.sleep(0.3)
+
+    def waiting():
+        return get_json(base + "/api/status")[1]["waiting_for_person"]
+    try:
+        wait_http(base + "/healthz")
+        for name in ("first.npy", "second.npy"):
+            write_dome(tmp_path / "share" / "drop" / name)
+        wait(lambda: states() == ["done", "ready"], "one printed, one ready")
+        time.sleep(2.0)
+        assert states() == ["done", "ready"], "the next job started on the finished sheet"
+        assert waiting() == ["p1"]
+        with urllib.request.urlopen(base + "/metrics", timeout=5) as r:
+            assert "hostd_printers_waiting_for_person 1.0" in r.read().decode()
+
+        browser = Chromium()
+        browser.goto(base + "/")
+        card = browser.js("document.querySelector('.printer .waiting').textContent")
+        assert "Waits for a person" in card and "finished" in card and "hostd clear p1" in card
+        browser.js("document.getElementById('token-input').value = %r;"
+                   "document.getElementById('token-keep').click()" % TOKEN)
+        browser.js("document.querySelector('form.clear button').click()")
+        wait(lambda: states() == ["done", "done"], "the second print after Bed is clear")
+        wait(lambda: waiting() == ["p1"], "the wait after the second print")
+        r = hostd("clear", "p1", "-c", config)
+        assert r.returncode == 0 and "bed of p1 is clear" in r.stdout, r.stderr
+        assert waiting() == []
     finally:
         if browser is not None:
             browser.close()
