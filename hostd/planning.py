@@ -85,10 +85,13 @@ class PlanProcess:
 
 
 def _read_result(path):
+    from hostd import share
+    from hostd.errors import HostdError
     try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+        result = share.read_json(path)
+    except (OSError, ValueError, HostdError):
         return None
+    return result if isinstance(result, dict) else None
 
 
 def _limit(memory_mb, cpu_s):

@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 
 from hostd import jobs as J
+from hostd import share
+from hostd.errors import HostdError
 from hostd.farm import PlanCache, file_hash, plan_key
 from hostd.planning import PlanProcess
 from hostd.reports import decision, report_in
@@ -72,6 +74,11 @@ class Plans:
                 continue
             except OSError as exc:
                 self._fail(job, "cannot read the input: %s" % exc, "job.unreadable")
+                continue
+            except HostdError as exc:
+                if not share.refused(exc):
+                    raise
+                self._fail(job, "cannot read the input: %s" % exc.text(), "job.unreadable")
                 continue
             self.store.update(job["id"], input_hash=digest, plan_key=key)
             job.update(input_hash=digest, plan_key=key)

@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import InvalidSidecar
+from pipeline.input.regular import opener
 from pipeline.profiles.profile import MeshParams, ValidateParams
 
 
@@ -115,7 +116,8 @@ def _read_capped(path, src):
     try:
         size = path.stat().st_size
         if size <= MAX_SIDECAR_BYTES:
-            with open(path, "rb") as f:
+            # A FIFO or device planted under the name must not block the reader.
+            with open(path, "rb", opener=opener) as f:
                 data = f.read(MAX_SIDECAR_BYTES + 1)
             size = max(size, len(data))
     except OSError as exc:
