@@ -58,7 +58,7 @@ def test_a_fifo_among_the_node_status_files_is_skipped(tmp_path):
     farm.publish_status({"state": "running", "printers": []})
     fifo = farm.nodes_dir / "evil.json"
     os.mkfifo(fifo)
-    (farm.nodes_dir / "zero.json").symlink_to("/dev/zero")
+    (farm.nodes_dir / "elsewhere.json").symlink_to(farm.nodes_dir / "n1.json")
     nodes = finishes(farm.nodes, [fifo])
     assert sorted(nodes) == ["n1"]
 
@@ -141,12 +141,23 @@ def test_a_runtime_file_that_is_a_fifo_or_dev_zero_does_not_hang_hostd_jobs(tmp_
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     env = dict(os.environ, XDG_RUNTIME_DIR=str(run_dir), PYTHONPATH=str(ROOT))
+    # Run under a wrapper that reports its child's peak memory; capped, since a read of
+    # /dev/zero to its end would take all the memory there is.
+    wrapper = ("import resource, subprocess, sys\n"
+               "cap = lambda: resource.setrlimit(resource.RLIMIT_AS, (1 << 31, 1 << 31))\n"
+               "r = subprocess.run([sys.executable, '-m', 'hostd', 'jobs'], preexec_fn=cap,\n"
+               "                   capture_output=True, text=True, timeout=25)\n"
+               "sys.stderr.write(r.stderr)\n"
+               "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n"
+               "sys.exit(r.returncode)\n")
     try:
-        r = subprocess.run([sys.executable, "-m", "hostd", "jobs"], cwd=elsewhere, env=env,
+        r = subprocess.run([sys.executable, "-c", wrapper], cwd=elsewhere, env=env,
                            capture_output=True, text=True, timeout=30)
     finally:
         _unblock([pointer])
-    assert r.returncode != 0 and "no hostd daemon found" in r.stderr
+    assert r.returncode != 0 and "no hostd daemon found" in r.stderr, r.stderr[-2000:]
+    peak_mb = int(r.stdout.split()[-1]) / 1024
+    assert peak_mb < 400, "hostd jobs peaked at %.0f MB" % peak_mb
 
 
 def test_a_fifo_where_the_plan_writes_its_result_is_not_waited_for(tmp_path):
