@@ -30,7 +30,7 @@ from hostd.farm import Farm, archive_done, archive_failed
 from hostd.lock import DaemonLock
 from hostd.notify import Notifier
 from hostd.plans import Plans
-from hostd.errors import HostdError
+from hostd.errors import HostdError, bounded
 from hostd.recovery import TWIN_FIX, RecoveryMixin
 from hostd.routes import Routes
 from hostd.slot import Slot
@@ -340,6 +340,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
             dropped = PurePosixPath(job["rel_path"])
             reason = reason.replace(str(job["sidecar_path"]),
                                     str(dropped.with_name(dropped.stem + ".yaml")))
+        reason = bounded(reason)
         log.warning("job %s failed: %s", job["id"], reason)
         return self._filing(job, reason, state=J.FAILED, code=code or "job.failed")
 

@@ -14,7 +14,7 @@ import logging
 import time
 
 from hostd import jobs as J
-from hostd.errors import HostdError
+from hostd.errors import HostdError, bounded
 from hostd.farm import archive_failed
 from hostd.watcher import name_problem, shown
 
@@ -102,11 +102,12 @@ class IntakeMixin:
     def _not_recorded(self, name, path, side, rel_path, exc):
         """File a claimed file whose recording failed on something unforeseen in failed/,
         with the reason: left in the claim folder it would be nobody's until a restart."""
+        said = bounded(exc, 1000)
         log.error("%s: could not be recorded as a job (%s: %s); it goes to failed/",
-                  rel_path, type(exc).__name__, exc, exc_info=exc)
+                  rel_path, type(exc).__name__, said, exc_info=exc)
         text = ("hostd could not take %s: %s: %s. Nothing in the file is known to be wrong: "
                 "this is a fault in hostd, and the log of node %s has the details" % (
-                    rel_path, type(exc).__name__, exc, self.config.node_id))
+                    rel_path, type(exc).__name__, said, self.config.node_id))
         job = next((j for j in self.store.list(J.ACTIVE) if j["input_path"] == str(path)), None)
         if job is not None:
             return self._fail(job, text + ". If a requeue fails the same way, report it with "
