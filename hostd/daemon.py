@@ -182,10 +182,7 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
     # -- planning --------------------------------------------------------------------------------
 
     def _gcode(self, job):
-        if not job["outbox"]:
-            return None
-        found = sorted(Path(job["outbox"]).glob("*.gcode"))
-        return found[0] if found else None
+        return self.plans.gcode(job)     # the node's own copy (hostd.kept), never the share's
 
     # -- printing ---------------------------------------------------------------------------------
 
@@ -209,7 +206,8 @@ class Daemon(ControlMixin, IntakeMixin, RecoveryMixin):
         from hostd.printer import PrinterError
         gcode = self._gcode(job)
         if gcode is None:
-            self.store.set_state(job["id"], J.QUEUED, "G-code missing from the outbox: planning again")
+            self.store.set_state(job["id"], J.QUEUED, "this node's copy of the G-code is "
+                                 "missing: planning again")
             return
         rate = job_feed(gcode, slot.config.baud)
         try:
