@@ -16,6 +16,7 @@ import time
 from hostd import jobs as J
 from hostd.errors import HostdError, bounded
 from hostd.farm import archive_failed
+from hostd.names import one_owner
 from hostd.watcher import name_problem, shown
 
 log = logging.getLogger("hostd.daemon")
@@ -86,13 +87,13 @@ class IntakeMixin:
         if claimed is None:
             return False
         path, side = claimed
-        self._add_job(cand.path.name, cand.rel_path, path, side, cand.target)
+        self._add_job(cand.path.name, cand.rel_path, path, side, cand.target, cand.others)
         return True
 
-    def _add_job(self, name, rel_path, path, side, target):
+    def _add_job(self, name, rel_path, path, side, target, others=()):
         """Record a claimed file as a job; one that cannot be goes to failed/."""
         try:
-            self._new_job(name, rel_path, path, side, target)
+            self._new_job(name, rel_path, path, side, target, others)
         except Exception as exc:
             if outage(exc):
                 raise     # the file stays claimed, and is recorded once it is over
@@ -116,7 +117,7 @@ class IntakeMixin:
                        "move the file (and its sidecar) back into the drop folder; if it fails "
                        "the same way, report it with that log.")
 
-    def _new_job(self, name, rel_path, path, side, target):
+    def _new_job(self, name, rel_path, path, side, target, others=()):
         from pipeline.errors import PipelineError
         from pipeline.input.heightfield import check_file
         from pipeline.input.sidecar import load_sidecar
@@ -129,6 +130,7 @@ class IntakeMixin:
         try:
             # A broken file is refused as it is taken: junk must not queue for a plan.
             check_file(path)
+            one_owner(rel_path, others)
             sidecar = load_sidecar(side) if side else None
         except PipelineError as exc:
             job_id = self.store.add(name, rel_path, path, **values)
