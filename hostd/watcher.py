@@ -223,7 +223,7 @@ class Watcher:
                 self._reported.discard(key)
         # What people see waiting in the drop folder (a file still being copied, or one
         # left for other nodes): replaced whole, read by the web threads.
-        self.inputs = [(shown(rel), self._seen[str(path)][0][0], states[str(path)])
+        self.inputs = [(rel, self._seen[str(path)][0][0], states[str(path)])
                        for path, rel, _, _ in files
                        if path.suffix.lower() in INPUT_SUFFIXES and str(path) in states]
         out = []
