@@ -165,3 +165,25 @@ def test_a_fifo_where_the_plan_writes_its_result_is_not_waited_for(tmp_path):
     fifo = tmp_path / "result.json"
     os.mkfifo(fifo)
     assert finishes(lambda: _read_result(fifo), [fifo]) is None
+
+
+def test_a_daemon_process_with_a_fifo_status_file_stops_at_once_on_sigterm(tmp_path):
+    import signal
+    import time
+    from daemon_helpers import daemon, jobs, wait_for, write_config
+    config = write_config(tmp_path)
+    nodes = tmp_path / "share" / "drop" / ".hostd" / "nodes"
+    nodes.mkdir(parents=True)
+    fifo = nodes / "evil.json"
+    os.mkfifo(fifo)
+    write_dome(tmp_path / "share" / "drop" / "a.npy")
+    try:
+        with daemon(config, env={"XDG_RUNTIME_DIR": str(tmp_path / "run")}) as d:
+            # Taking the file needs the loop to go round after a heartbeat read the FIFO.
+            wait_for(lambda: jobs(config), timeout=60, what="the file taken", proc=d)
+            t = time.monotonic()
+            d.proc.send_signal(signal.SIGTERM)
+            assert d.proc.wait(20) == 0
+            assert time.monotonic() - t < 15
+    finally:
+        _unblock([fifo])
