@@ -111,13 +111,26 @@ class Plans:
             del self._running[job_id]
             job = self.store.get(job_id)
             if result.get("ok"):
-                self.kept.keep(job_id, job["plan_key"])
+                result = self._keep(job)
+            if result.get("ok"):
                 self.cache.store(proc.outdir, job["plan_key"], Path(job["input_path"]).stem)
                 self._ready(job, "planned in %.1f s" % (time.monotonic() - proc.started))
                 self.kept.prune({j["plan_key"] for j in self.store.list(J.ACTIVE)})
             else:
                 self.kept.discard(job_id)
                 self._failed(job, proc, result)
+
+    def _keep(self, job):
+        """Make the finished plan of ``job`` the node's own copy: a result dict."""
+        try:
+            self.kept.keep(job["id"], job["plan_key"])
+            return {"ok": True}
+        except OSError as exc:
+            return {"ok": False, "code": "plan.not_kept",
+                    "text": "the plan's G-code could not be kept in %s: %s" % (
+                        self.kept.root, exc.strerror or exc),
+                    "fix": "free space on the node's own disk (state_dir), then `hostd requeue` "
+                           "the job"}
 
     def cancel(self, job_id):
         """Stop the plan of ``job_id``, if one runs; True if it did."""

@@ -92,3 +92,34 @@ def test_a_plan_only_the_share_holds_is_planned_again(tmp_path):
         assert EDIT not in printed[1] and printed[1] == printed[0]
     finally:
         d.shutdown()
+
+
+def test_a_plan_that_cannot_be_kept_fails_its_job_not_the_node(tmp_path):
+    import errno
+    d = in_process_daemon(tmp_path, 0)
+    try:
+        def full(job_id, key):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        d.plans.kept.keep = full
+        write_dome(d.config.drop_dir / "a.npy")
+        tick_until(d, lambda: [j["state"] for j in d.store.list()] == [J.FAILED])
+        job = d.store.list()[0]
+        assert job["error_code"] == "plan.not_kept" and "No space left" in job["error"]
+        assert d.problems() == {} and not d.plans.kept.gcode(job["plan_key"])
+    finally:
+        d.shutdown()
+
+
+def test_the_oldest_kept_plans_go_first_never_those_in_use(tmp_path):
+    import os
+    from hostd import kept as kept_mod
+    kept = kept_mod.Kept(tmp_path)
+    keys = ["k%03d" % i for i in range(kept_mod.KEEP + 5)]
+    for i, key in enumerate(keys):
+        (kept.staging("j" + key) / GCODE).write_text("G1 X%d\n" % i)
+        kept.keep("j" + key, key)
+        os.utime(kept.root / key, (1000 + i, 1000 + i))
+    kept.prune(in_use={"k000"})
+    left = sorted(p.name for p in kept.root.iterdir())
+    assert left == ["k000"] + keys[5:]
+    assert kept.gcode("k001") is None and kept.gcode("k000").read_text() == "G1 X0\n"
