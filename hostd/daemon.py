@@ -99,7 +99,8 @@ class Daemon:
         endings = self.add("endings", Endings(c, store))
         outages = self.add("outages", Outages(c, store, slots, farm))
         plans = self.add("plans", Plans(c, store, routes.why_not, endings.fail, outages.full_ok))
-        printing = self.add("printing", Printing(c, store, slots, routes, endings, outages))
+        printing = self.add("printing", Printing(c, store, slots, routes, endings,
+                                                 outages, plans))
         intake = self.add("intake", Intake(c, store, self.watcher, farm, routes, slots, endings))
         self.add("control", Control(c, store, slots, plans, farm, routes, endings, printing))
         self.add("recovery", Recovery(c, store, slots, farm, plans, intake, printing, endings,

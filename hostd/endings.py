@@ -10,6 +10,7 @@ import os
 from pathlib import Path, PurePosixPath
 
 from hostd import jobs as J
+from hostd.errors import bounded
 from hostd.farm import archive_failed
 
 log = logging.getLogger("hostd.daemon")
@@ -34,6 +35,7 @@ class Endings:
             dropped = PurePosixPath(job["rel_path"])
             reason = reason.replace(str(job["sidecar_path"]),
                                     str(dropped.with_name(dropped.stem + ".yaml")))
+        reason = bounded(reason)
         log.warning("job %s failed: %s", job["id"], reason)
         return self.filing(job, reason, state=J.FAILED, code=code or "job.failed")
 

@@ -36,3 +36,16 @@ class HostdError(Exception):
         if self.fix:
             parts.append(". Fix: " + self.fix)
         return "".join(parts)
+
+
+# The longest reason a job's record, its NAME.error.txt or a log line carries: a reason
+# quotes what people gave (a name, a sidecar's value), and that must never be unbounded.
+MAX_REASON_CHARS = 4000
+
+
+def bounded(text, limit=MAX_REASON_CHARS):
+    """``text`` cut to ``limit`` characters, saying how much was left out."""
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    return text[:limit] + " [... %d more characters not shown]" % (len(text) - limit)

@@ -31,7 +31,10 @@ import time
 import uuid
 from pathlib import Path
 
+from hostd import share
+from hostd.errors import HostdError
 from hostd.outputs import atomic_write, json_text
+from hostd.status import status_fields
 from hostd.watcher import safe_stem
 
 log = logging.getLogger("hostd.farm")
@@ -51,12 +54,9 @@ def unique_path(path):
     raise FileExistsError(path)
 
 
-def file_hash(path, chunk=1 << 20):
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(chunk), b""):
-            h.update(block)
-    return h.hexdigest()
+def file_hash(path):
+    """sha256 hex digest of the regular file ``path`` (see :mod:`hostd.share`)."""
+    return share.file_hash(path)
 
 
 def plan_key(input_hash, sidecar_path, profile_hash, version):
@@ -64,8 +64,9 @@ def plan_key(input_hash, sidecar_path, profile_hash, version):
     h = hashlib.sha256()
     h.update(input_hash.encode())
     h.update(b"\0")
-    if sidecar_path and os.path.exists(sidecar_path):
-        h.update(Path(sidecar_path).read_bytes())
+    if sidecar_path and os.path.lexists(sidecar_path):
+        from pipeline.input.sidecar import MAX_SIDECAR_BYTES
+        h.update(share.read_bytes(sidecar_path, MAX_SIDECAR_BYTES))
     h.update(b"\0" + str(profile_hash).encode() + b"\0" + str(version).encode())
     return h.hexdigest()[:32]
 
@@ -127,10 +128,10 @@ class Farm:
     def lease_holder(self):
         """The lease as last written: (its text after the time, mtime), or (None, None)."""
         try:
-            with open(self.claim_dir / ".lease", "rb") as f:   # an open: NFS revalidates
-                words = f.read().decode("utf-8", "replace").split(None, 1)
-                return (words[1].strip() if len(words) > 1 else ""), os.fstat(f.fileno()).st_mtime
-        except OSError:
+            with share.open_file(self.claim_dir / ".lease") as f:   # NFS revalidates on open
+                words = f.read(share.SMALL_BYTES).decode("utf-8", "replace").split(None, 1)
+                return (words[1].strip()[:200] if len(words) > 1 else ""), share.mtime(f)
+        except (OSError, HostdError):
             return None, None
 
     def held_by_another(self, watch_s, poll_s=0.2):
@@ -245,13 +246,14 @@ class Farm:
         out = {}
         for path in sorted(self.nodes_dir.glob("*.json")):
             try:
-                with open(path, "rb") as f:   # an open, not a stat: NFS revalidates on open
-                    data = json.loads(f.read())
-                    written = os.fstat(f.fileno()).st_mtime
-            except (OSError, ValueError):
+                with share.open_file(path) as f:   # an open, not a stat: NFS revalidates on open
+                    raw = f.read(share.SMALL_BYTES + 1)
+                    written = share.mtime(f)
+                data = json.loads(raw) if len(raw) <= share.SMALL_BYTES else None
+            except (OSError, ValueError, HostdError):
                 continue
             if isinstance(data, dict):
-                out[path.stem] = (data, now - written)
+                out[path.stem] = (status_fields(data), now - written)
         return out
 
 
@@ -340,7 +342,7 @@ class PlanCache:
     def export(self, key, outdir, stem):
         """Copy a cached plan's files to ``outdir`` renamed to ``stem``; returns G-code path."""
         src = self.path(key)
-        cached = json.loads((src / "plan.json").read_text())["stem"]
+        cached = share.read_json(src / "plan.json")["stem"]
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         gcode = None

@@ -15,8 +15,9 @@ import logging
 import time
 
 from hostd import jobs as J
-from hostd.errors import HostdError
+from hostd.errors import HostdError, bounded
 from hostd.farm import archive_failed
+from hostd.names import one_owner
 from hostd.watcher import name_problem, shown
 
 log = logging.getLogger("hostd.daemon")
@@ -97,13 +98,13 @@ class Intake:
         if claimed is None:
             return False
         path, side = claimed
-        self.add_job(cand.path.name, cand.rel_path, path, side, cand.target)
+        self.add_job(cand.path.name, cand.rel_path, path, side, cand.target, cand.others)
         return True
 
-    def add_job(self, name, rel_path, path, side, target):
+    def add_job(self, name, rel_path, path, side, target, others=()):
         """Record a claimed file as a job; one that cannot be goes to failed/."""
         try:
-            self._new_job(name, rel_path, path, side, target)
+            self._new_job(name, rel_path, path, side, target, others)
         except Exception as exc:
             if outage(exc):
                 raise     # the file stays claimed, and is recorded once it is over
@@ -113,11 +114,12 @@ class Intake:
     def _not_recorded(self, name, path, side, rel_path, exc):
         """File a claimed file whose recording failed on something unforeseen in failed/,
         with the reason: left in the claim folder it would be nobody's until a restart."""
+        said = bounded(exc, 1000)
         log.error("%s: could not be recorded as a job (%s: %s); it goes to failed/",
-                  rel_path, type(exc).__name__, exc, exc_info=exc)
+                  rel_path, type(exc).__name__, said, exc_info=exc)
         text = ("hostd could not take %s: %s: %s. Nothing in the file is known to be wrong: "
                 "this is a fault in hostd, and the log of node %s has the details" % (
-                    rel_path, type(exc).__name__, exc, self.config.node_id))
+                    rel_path, type(exc).__name__, said, self.config.node_id))
         job = next((j for j in self.store.list(J.ACTIVE) if j["input_path"] == str(path)), None)
         if job is not None:
             return self.endings.fail(job, text + ". If a requeue fails the same way, report it "
@@ -126,7 +128,7 @@ class Intake:
                        "move the file (and its sidecar) back into the drop folder; if it fails "
                        "the same way, report it with that log.")
 
-    def _new_job(self, name, rel_path, path, side, target):
+    def _new_job(self, name, rel_path, path, side, target, others=()):
         from pipeline.errors import PipelineError
         from pipeline.input.heightfield import check_file
         from pipeline.input.sidecar import load_sidecar
@@ -139,6 +141,7 @@ class Intake:
         try:
             # A broken file is refused as it is taken: junk must not queue for a plan.
             check_file(path)
+            one_owner(rel_path, others)
             sidecar = load_sidecar(side) if side else None
         except PipelineError as exc:
             job_id = self.store.add(name, rel_path, path, **values)

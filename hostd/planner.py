@@ -8,11 +8,13 @@ take their names from. On a pipeline error only ``NAME.error.json`` is written.
 
 import json
 import math
+import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 
+from hostd import kept
 from hostd.outputs import Staging, atomic_write, json_text
 from pipeline import plyio
 from pipeline.gcode import writer as gcode
@@ -34,11 +36,13 @@ def output_names(name, color=False):
     return {k: "%s.%s" % (name, k) for k in kinds}
 
 
-def run(input_path, profile, outdir, progress=None, force_fit=False, method=None):
+def run(input_path, profile, outdir, progress=None, force_fit=False, method=None, keep=None):
     """Plan ``input_path`` into ``outdir``.
 
     Returns the :class:`pipeline.plan.Plan`. On a :class:`PipelineError`,
-    writes ``NAME.error.json`` (atomically) and re-raises.
+    writes ``NAME.error.json`` (atomically) and re-raises. ``keep``: a folder of the
+    node's own where the G-code and report are written first, ``outdir`` getting copies
+    (see :mod:`hostd.kept`).
     """
     input_path = Path(input_path)
     outdir = Path(outdir)
@@ -50,9 +54,12 @@ def run(input_path, profile, outdir, progress=None, force_fit=False, method=None
             progress("write", "rendering pictures and writing outputs")
         t = time.perf_counter()
         with Staging(outdir) as st:
-            write_outputs(st, plan)
+            write_outputs(st, plan, keep)
             plan.report["timing_s"]["write"] = round(time.perf_counter() - t, 4)
-            st.write(output_names(name)["report.json"], json_text(plan.report))
+            report = json_text(plan.report)
+            if keep:
+                atomic_write(Path(keep) / kept.REPORT, report)
+            st.write(output_names(name)["report.json"], report)
         stale = outdir / (name + ".error.json")
         if stale.exists():
             stale.unlink()
@@ -64,10 +71,11 @@ def run(input_path, profile, outdir, progress=None, force_fit=False, method=None
         raise
 
 
-def write_outputs(st, plan):
+def write_outputs(st, plan, keep=None):
     """Render and write every file of ``plan`` into the staging area ``st``.
 
-    Adds the report's ``gcode`` section and the ``gcode``/``texture`` timings.
+    Adds the report's ``gcode`` section and the ``gcode``/``texture`` timings. With
+    ``keep`` the G-code is written there and ``st`` gets a copy.
     """
     name, mesh, flat, sim, prof = plan.name, plan.mesh, plan.flat, plan.sim, plan.profile
     # Every file's name comes from output_names (a KeyError for one it does not list),
@@ -77,12 +85,15 @@ def write_outputs(st, plan):
     timing = plan.report["timing_s"]
     tp = plan.toolpaths
     t = time.perf_counter()
+    gcode_path = Path(keep) / kept.GCODE if keep else st.path(out["gcode"])
     try:
-        stats = _write_gcode(plan, st.path(out["gcode"]))
+        stats = _write_gcode(plan, gcode_path)
     except PlanError as e:
         raise _blocked_first(plan, e) from e
     if plan.blocked:
-        _mark_not_printable(st.path(out["gcode"]), plan.problems)
+        _mark_not_printable(gcode_path, plan.problems)
+    if keep:
+        shutil.copyfile(gcode_path, st.path(out["gcode"]))
     timing["gcode"] = round(time.perf_counter() - t, 4)
     plan.report["gcode"] = _gcode_report(stats)
     for problem in link_problems(stats, prof):

@@ -24,14 +24,15 @@ _REPO = str(Path(__file__).resolve().parents[1])
 class PlanProcess:
     """One running plan: ``poll()`` -> None while running, else a result dict."""
 
-    def __init__(self, job_id, input_path, profile, outdir, time_limit_s, memory_mb):
+    def __init__(self, job_id, input_path, profile, outdir, time_limit_s, memory_mb,
+                 keep=None):
         self.job_id = job_id
         self.outdir = Path(outdir)
         self.time_limit_s = float(time_limit_s)
         self.started = time.monotonic()
         args = json.dumps({"input": str(input_path), "profile": profile, "outdir": str(outdir),
                            "memory_mb": int(memory_mb), "cpu_s": int(time_limit_s) + 5,
-                           "parent_pid": os.getpid()})
+                           "parent_pid": os.getpid(), "keep": keep and str(keep)})
         env = dict(os.environ)
         env["PYTHONPATH"] = _REPO + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         # Few threads per child: several plans must not starve the streaming thread.
@@ -85,10 +86,13 @@ class PlanProcess:
 
 
 def _read_result(path):
+    from hostd import share
+    from hostd.errors import HostdError
     try:
-        return json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+        result = share.read_json(path)
+    except (OSError, ValueError, HostdError):
         return None
+    return result if isinstance(result, dict) else None
 
 
 def _limit(memory_mb, cpu_s):
@@ -180,7 +184,7 @@ def child_main(argv):
         from pipeline.profiles.profile import load_profile
         profile = load_profile(args["profile"])
         result = plan_result(planner.run(args["input"], profile, outdir,
-                                         progress=_stage_writer(outdir)))
+                                         progress=_stage_writer(outdir), keep=args.get("keep")))
     except PipelineError as exc:
         result = dict(exc.to_dict(), ok=False)
     except MemoryError:

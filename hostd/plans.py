@@ -12,7 +12,10 @@ import time
 from pathlib import Path
 
 from hostd import jobs as J
+from hostd import share
+from hostd.errors import HostdError
 from hostd.farm import PlanCache, file_hash, plan_key
+from hostd.kept import Kept
 from hostd.planning import PlanProcess
 from hostd.reports import decision, report_in
 from hostd.watcher import name_problem
@@ -34,6 +37,7 @@ class Plans:
         self.config = config
         self.store = store
         self.cache = PlanCache(Path(config.outbox_dir) / ".cache")
+        self.kept = Kept(config.state_dir)
         self._may_plan, self._fail, self._quietly = may_plan, fail, quietly
         self._running = {}            # job id -> PlanProcess
         self._profile_hashes = {}
@@ -73,14 +77,22 @@ class Plans:
             except OSError as exc:
                 self._fail(job, "cannot read the input: %s" % exc, "job.unreadable")
                 continue
+            except HostdError as exc:
+                if not share.refused(exc):
+                    raise
+                self._fail(job, "cannot read the input: %s" % exc.text(), "job.unreadable")
+                continue
             self.store.update(job["id"], input_hash=digest, plan_key=key)
             job.update(input_hash=digest, plan_key=key)
-            if self.cache.get(key):
+            # Only a plan this node made and kept is printed: the share's copy alone may
+            # have been edited by anyone who can write the share.
+            if self.cache.get(key) and self.kept.folder(key):
                 self._ready(job, "plan found in the cache")
                 continue
             outdir = self.cache.staging(job["id"])
             proc = PlanProcess(job["id"], job["input_path"], job["profile"], outdir,
-                               self.config.planning.time_limit_s, self.config.planning.memory_mb)
+                               self.config.planning.time_limit_s, self.config.planning.memory_mb,
+                               keep=self.kept.staging(job["id"]))
             self._running[job["id"]] = proc
             self.store.set_state(job["id"], J.PLANNING, "planning in process %d" % proc.pid,
                                  stage=proc.stage())
@@ -99,16 +111,33 @@ class Plans:
             del self._running[job_id]
             job = self.store.get(job_id)
             if result.get("ok"):
+                result = self._keep(job)
+            if result.get("ok"):
                 self.cache.store(proc.outdir, job["plan_key"], Path(job["input_path"]).stem)
                 self._ready(job, "planned in %.1f s" % (time.monotonic() - proc.started))
+                self.kept.prune({j["plan_key"] for j in self.store.list(J.ACTIVE)})
             else:
+                self.kept.discard(job_id)
                 self._failed(job, proc, result)
+
+    def _keep(self, job):
+        """Make the finished plan of ``job`` the node's own copy: a result dict."""
+        try:
+            self.kept.keep(job["id"], job["plan_key"])
+            return {"ok": True}
+        except OSError as exc:
+            return {"ok": False, "code": "plan.not_kept",
+                    "text": "the plan's G-code could not be kept in %s: %s" % (
+                        self.kept.root, exc.strerror or exc),
+                    "fix": "free space on the node's own disk (state_dir), then `hostd requeue` "
+                           "the job"}
 
     def cancel(self, job_id):
         """Stop the plan of ``job_id``, if one runs; True if it did."""
         proc = self._running.pop(job_id, None)
         if proc:
             proc.kill()
+            self.kept.discard(job_id)
         return proc is not None
 
     def stop_all(self):
@@ -148,10 +177,14 @@ class Plans:
         outbox = self._outbox(job, fresh=True)
         self.cache.export(job["plan_key"], outbox, Path(job["name"]).stem if not
                           name_problem(job["name"]) else Path(job["input_path"]).stem)
-        wait = decision(report_in(outbox))
+        wait = decision(report_in(self.kept.folder(job["plan_key"])))
         self.store.set_state(job["id"], J.READY, message + (". " + wait if wait else ""),
                              outbox=str(outbox), decision=wait)
         log.info("job %s: %s ready (%s), outputs in %s", job["id"], job["name"], message, outbox)
+
+    def gcode(self, job):
+        """The G-code a printer runs for ``job``: the node's own copy of its plan, or None."""
+        return self.kept.gcode(job["plan_key"])
 
     def _profile_hash(self, name):
         if name not in self._profile_hashes:

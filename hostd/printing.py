@@ -34,13 +34,14 @@ TAIL_BYTES = 64 * 1024     # where a plan's G-code ends with its clear_bed block
 class Printing:
     """Prints on this node's printers."""
 
-    def __init__(self, config, store, slots, routes, endings, outages):
+    def __init__(self, config, store, slots, routes, endings, outages, plans):
         self.config = config
         self.store = store
         self.slots = slots
         self.routes = routes
         self.endings = endings
         self.outages = outages
+        self.plans = plans
         self._next_reconnect = 0.0
 
     def slot(self, name):
@@ -66,11 +67,8 @@ class Printing:
         return any(s.job_id is not None for s in self.slots)
 
     def gcode(self, job):
-        """The G-code file in ``job``'s outbox, or None."""
-        if not job["outbox"]:
-            return None
-        found = sorted(Path(job["outbox"]).glob("*.gcode"))
-        return found[0] if found else None
+        """The G-code a printer runs for ``job``: the node's own copy, never the share's."""
+        return self.plans.gcode(job)
 
     # -- starting ------------------------------------------------------------------------------
 
@@ -94,8 +92,8 @@ class Printing:
         from hostd.printer import PrinterError
         gcode = self.gcode(job)
         if gcode is None:
-            self.store.set_state(job["id"], J.QUEUED,
-                                 "G-code missing from the outbox: planning again")
+            self.store.set_state(job["id"], J.QUEUED, "this node's copy of the G-code is "
+                                 "missing: planning again")
             return
         rate = job_feed(gcode, slot.config.baud)
         try:

@@ -1,9 +1,11 @@
 """What the daemon reads from a plan's report in the outbox: the figures a print needs
 (its feed over the link) and whether a person must decide before it prints."""
 
-import json
 import logging
 from pathlib import Path
+
+from hostd import share
+from hostd.errors import HostdError
 
 log = logging.getLogger("hostd.daemon")
 
@@ -17,8 +19,8 @@ def report_in(outbox):
     if not found:
         return {}
     try:
-        return json.loads(found[0].read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+        return share.read_json(found[0], share.REPORT_BYTES)
+    except (OSError, ValueError, HostdError) as exc:
         log.warning("cannot read %s: %s", found[0], exc)
         return {}
 

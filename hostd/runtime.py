@@ -6,7 +6,6 @@ configuration file and the folder it was started from; the daemon's own lock say
 it still runs. With several daemons for one user, the file names the last one started.
 """
 
-import json
 import os
 from pathlib import Path
 
@@ -39,10 +38,17 @@ def withdraw():
     """Forget this daemon, if the file still names it."""
     path = runtime_file()
     try:
-        if json.loads(path.read_text()).get("pid") == os.getpid():
+        if _read(path).get("pid") == os.getpid():
             path.unlink()
-    except (OSError, ValueError):
+    except (OSError, ValueError, HostdError, AttributeError):
         pass
+
+
+def _read(path):
+    """The runtime file's JSON: a regular file of a few hundred bytes (a FIFO or a link to
+    /dev/zero put in its place would hang every terminal command)."""
+    from hostd import share
+    return share.read_json(path)
 
 
 def running_config():
@@ -56,7 +62,7 @@ def _running():
     from hostd.config import DEFAULT_PATH, default_data, load_config, parse_config
     from hostd.lock import running_pid
     try:
-        info = json.loads(runtime_file().read_text())
+        info = _read(runtime_file())
         if info.get("config"):
             config = load_config(info["config"])
         else:

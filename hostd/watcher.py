@@ -20,6 +20,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from hostd.names import hidden, visible
+
 log = logging.getLogger("hostd.watcher")
 
 INPUT_SUFFIXES = (".png", ".tif", ".tiff", ".npy", ".npz", ".stl", ".obj", ".ply", ".glb")
@@ -58,8 +60,9 @@ def safe_stem(name, limit=60):
 
 def shown(name):
     """``name`` as text any page, log or database can hold: bytes that are not UTF-8
-    (carried by Python as surrogates) become U+FFFD."""
-    return os.fsencode(name).decode("utf-8", "replace")
+    (carried by Python as surrogates) become U+FFFD, and characters that would change how
+    it reads (a right-to-left override, controls) are written as escapes."""
+    return visible(os.fsencode(name).decode("utf-8", "replace"))
 
 
 def name_problem(name):
@@ -73,6 +76,9 @@ def name_problem(name):
         return "the name is longer than %d bytes" % MAX_NAME_BYTES
     if any(ord(c) < 32 or ord(c) == 127 for c in name):
         return "the name contains control characters"
+    if any(hidden(c) for c in name):
+        return "the name contains characters that change how it reads (%s)" % ", ".join(
+            sorted({"U+%04X" % ord(c) for c in name if hidden(c)}))
     return None
 
 
@@ -83,6 +89,9 @@ class Candidate:
     rel_path: str         # "NAME.ext" or "TARGET/NAME.ext"
     target: str           # TARGET or None
     sidecar: Path         # drop/[TARGET/]NAME.yaml, or None
+    # Other inputs of the same stem beside a sidecar ("t.png" with "t.npy" and "t.yaml"):
+    # whose the sidecar is cannot be known, and both are refused naming each other.
+    others: tuple = ()
 
 
 class _Events:
@@ -117,7 +126,7 @@ class Watcher:
         self.wake = threading.Event()
         self.lock = threading.Lock()
         self.renamed = set()
-        self._seen = {}          # path -> (size, mtime_ns, stable since, by_rename)
+        self._seen = {}          # path -> ((size, mtime_ns, inode), stable since, by_rename)
         self._reported = set()
         self._next_scan = 0.0
         self._observer = None
@@ -196,13 +205,17 @@ class Watcher:
             key = str(path)
             present.add(key)
             old = self._seen.get(key)
-            sig = (st.st_size, st.st_mtime_ns)
+            # The inode tells a new file from the one reported before under the same name
+            # (the first claimed and a second dropped or uploaded between two scans): a
+            # new file is offered anew, never hidden behind the first's report.
+            sig = (st.st_size, st.st_mtime_ns, st.st_ino)
             by_rename = key in renamed
-            if old is None or old[:2] != sig:
-                self._seen[key] = sig + (now, by_rename)
+            if old is None or old[0] != sig:
+                self._seen[key] = (sig, now, by_rename)
+                self._reported.discard(key)
             elif by_rename:
-                self._seen[key] = old[:3] + (True,)
-            complete = self._seen[key][3] or now - self._seen[key][2] >= self.settle_s
+                self._seen[key] = old[:2] + (True,)
+            complete = self._seen[key][2] or now - self._seen[key][1] >= self.settle_s
             states[key] = complete
         for key in list(self._seen):
             if key not in present:
@@ -210,10 +223,14 @@ class Watcher:
                 self._reported.discard(key)
         # What people see waiting in the drop folder (a file still being copied, or one
         # left for other nodes): replaced whole, read by the web threads.
-        self.inputs = [(rel, self._seen[str(path)][0], states[str(path)])
+        self.inputs = [(rel, self._seen[str(path)][0][0], states[str(path)])
                        for path, rel, _, _ in files
                        if path.suffix.lower() in INPUT_SUFFIXES and str(path) in states]
         out = []
+        stems = {}
+        for path, rel, _, _ in files:
+            if path.suffix.lower() in INPUT_SUFFIXES:
+                stems.setdefault(str(path.with_suffix("")), []).append(rel)
         for path, rel, target, _ in files:
             key = str(path)
             if path.suffix.lower() not in INPUT_SUFFIXES or not states.get(key):
@@ -225,7 +242,10 @@ class Watcher:
             if skey in present and not states.get(skey):
                 continue  # the sidecar is still being written: wait for both
             self._reported.add(key)
-            out.append(Candidate(path, rel, target, sidecar if skey in present else None))
+            others = tuple(r for r in stems[str(path.with_suffix(""))] if r != rel) \
+                if skey in present else ()
+            out.append(Candidate(path, rel, target, sidecar if skey in present else None,
+                                 others))
         return out
 
     def forget(self, candidate):

@@ -14,6 +14,7 @@ import json
 import sys
 import time
 
+from hostd import share
 from hostd.errors import HostdError
 
 WAIT_S = 15.0
@@ -141,7 +142,7 @@ def cmd_job(args):
     reports = sorted(Path(job["outbox"]).glob("*.report.json")) if job["outbox"] else []
     if reports:
         try:
-            r = json.loads(reports[0].read_text())
+            r = share.read_json(reports[0], share.REPORT_BYTES)
             print("report: %s" % reports[0])
             for section, keys in (("mesh", ("triangles",)),
                                   ("simulation", ("mean_displacement_mm", "max_displacement_mm")),
@@ -149,7 +150,7 @@ def cmd_job(args):
                 for k in keys:
                     if k in r.get(section, {}):
                         print("  %s.%s: %s" % (section, k, r[section][k]))
-        except (OSError, ValueError):
+        except (OSError, ValueError, HostdError):
             pass
     return 0
 

@@ -8,7 +8,6 @@ live values (state, temperatures, line counters) are copies the driver thread ke
 import bisect
 import concurrent.futures
 import errno
-import json
 import os
 import stat
 import threading
@@ -16,6 +15,8 @@ import time
 from pathlib import Path
 
 from hostd import jobs as J
+from hostd import share
+from hostd.errors import HostdError
 from hostd.watcher import shown
 
 PAGE_STATES = ("idle", "heating", "printing", "paused", "error", "disconnected")
@@ -144,7 +145,7 @@ class _FileCache:
                 return self._data[key]
         try:
             value = parse(path)
-        except (OSError, ValueError):
+        except (OSError, ValueError, HostdError):
             value = None
         with self._lock:
             if len(self._data) >= self._size:
@@ -154,14 +155,13 @@ class _FileCache:
 
 
 def _read_json(path):
-    with open(path, encoding="utf-8") as f:
-        return json.load(f)
+    return share.read_json(path, share.REPORT_BYTES)
 
 
 def _layer_starts(path):
     """(file line numbers where each ``;LAYER:n`` starts, layer count) of a G-code file."""
     starts, count = [], 0
-    with open(path, "rb") as f:
+    with share.open_file(path) as f:
         for number, raw in enumerate(f, 1):
             if raw.startswith(b";LAYER:"):
                 starts.append(number)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pipeline.input.regular import opener
 from pipeline.errors import InvalidHeightField
 from pipeline.geometry import HeightField
 from pipeline.profiles.profile import Defaults, ValidateParams
@@ -125,7 +126,8 @@ def check_file(path):
 
 
 def _check_magic(path, ext):
-    with open(path, "rb") as f:
+    # Opened without blocking and checked: the name may be a FIFO planted since the stat.
+    with open(path, "rb", opener=opener) as f:
         head = f.read(512)
     magics = _MAGIC.get(ext)
     ok = any(head.startswith(m) for m in magics) if magics else True
@@ -154,7 +156,7 @@ def _stl_binary_size(path):
     size = path.stat().st_size
     if size < 84:
         return None
-    with open(path, "rb") as f:
+    with open(path, "rb", opener=opener) as f:
         f.seek(80)
         n = int(np.frombuffer(f.read(4), "<u4")[0])
     return 84 + 50 * n

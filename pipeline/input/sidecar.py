@@ -2,7 +2,9 @@
 
 Errors (``InvalidSidecar``): ``sidecar.yaml``, ``.unknown_key``, ``.type``, ``.value``,
 ``.conflict``, ``.profile``, ``.too_large`` (over :data:`MAX_SIDECAR_BYTES`, refused
-unparsed), ``.unreadable``; each names the file, the key and the fix.
+unparsed), ``.unreadable``, ``.alias`` (YAML anchors and aliases, refused as parsed),
+``.nested`` (deeper than :data:`MAX_DEPTH`); each names the file, the key and the fix.
+A message shows at most a few dozen characters of a value it quotes (:func:`brief`).
 """
 
 import re
@@ -14,6 +16,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import InvalidSidecar
+from pipeline.input.regular import opener
 from pipeline.profiles.profile import MeshParams, ValidateParams
 
 
@@ -61,6 +64,64 @@ _SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
 
 # A sidecar holds a few keys; anything larger is refused unparsed.
 MAX_SIDECAR_BYTES = 64 * 1024
+# A sidecar is one mapping of scalars: depth 2. Deeper only to say what is wrong.
+MAX_DEPTH = 8
+# The longest scalar a sidecar has use for (a profile name has 64 characters at most).
+MAX_SCALAR_CHARS = 256
+MAX_COPIES = 100
+MAX_PRIORITY = 1000
+# Numbers beyond this are no size, height or count of anything printed.
+_HUGE = 1e12
+
+
+def brief(value, limit=40):
+    """``value`` as a message may quote it: a scalar's repr cut to ``limit`` characters, a
+    list or mapping by its kind and length only (never formatted whole: a few hundred bytes
+    of YAML can stand for gigabytes of text)."""
+    if isinstance(value, (list, tuple)):
+        return "a list of %d items" % len(value)
+    if isinstance(value, dict):
+        return "a mapping of %d keys" % len(value)
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10 ** 30:
+        return "an integer of %d digits" % len(str(abs(value)))
+    text = repr(value) if isinstance(value, (str, int, float, bool, type(None))) else \
+        "a value of type %s" % type(value).__name__
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing anchors and aliases (``&a`` / ``*a``: eight levels of
+    nine aliases each are 43 million values from 358 bytes) and nesting past
+    :data:`MAX_DEPTH` (thousands of ``[`` exhaust the composer's recursion) before any
+    value is built, and scalars longer than :data:`MAX_SCALAR_CHARS`."""
+
+    depth = 0
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
+            raise _Refused("sidecar.alias", "YAML anchors and aliases (&name, *name) are not "
+                           "read in a sidecar", event.start_mark,
+                           "write each value out, e.g. `smooth_mm: 2.0`")
+        if isinstance(event, yaml.ScalarEvent) and len(event.value) > MAX_SCALAR_CHARS:
+            raise _Refused("sidecar.value", "a value of %d characters; a sidecar's values have "
+                           "at most %d" % (len(event.value), MAX_SCALAR_CHARS),
+                           event.start_mark, "write a short value, e.g. `size_mm: 150`")
+        self.depth += 1
+        try:
+            if self.depth > MAX_DEPTH:
+                raise _Refused("sidecar.nested", "values nested more than %d deep; a sidecar "
+                               "is `key: value` lines" % MAX_DEPTH, event.start_mark,
+                               "write plain `key: value` lines, e.g. `size_mm: 150`")
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+
+class _Refused(Exception):
+    def __init__(self, code, message, mark, fix):
+        super().__init__(message)
+        self.code, self.message, self.mark, self.fix = code, message, mark, fix
 
 
 def sidecar_path(path):
@@ -79,7 +140,16 @@ def load_sidecar(path):
         return Sidecar()
     src = str(path)
     try:
-        data = yaml.safe_load(_read_capped(path, src))
+        data = yaml.load(_read_capped(path, src), Loader=_Loader)
+    except _Refused as exc:
+        raise InvalidSidecar(exc.message, code=exc.code, file=src,
+                             where=exc.mark and "line %d" % (exc.mark.line + 1),
+                             fix=exc.fix) from None
+    except ValueError as exc:
+        # PyYAML turns an integer of more than 4300 digits into a ValueError of Python's.
+        raise InvalidSidecar("a value cannot be read: %s" % brief(str(exc), 120),
+                             code="sidecar.value", file=src,
+                             fix="write plain numbers, e.g. `size_mm: 150`") from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         mark = getattr(exc, "problem_mark", None)
         raise InvalidSidecar("not valid YAML: %s" % getattr(exc, "problem", exc),
@@ -94,8 +164,8 @@ def load_sidecar(path):
     vals = {}
     for key, value in data.items():
         if key not in _SIDECAR_SCHEMA:
-            raise InvalidSidecar("unknown sidecar key %r" % key, code="sidecar.unknown_key",
-                                 file=src, where=str(key),
+            raise InvalidSidecar("unknown sidecar key %s" % brief(key),
+                                 code="sidecar.unknown_key", file=src, where=brief(key),
                                  fix="use only: " + ", ".join(_SIDECAR_SCHEMA))
         kind, positive = _SIDECAR_SCHEMA[key]
         vals[key] = _sidecar_value(key, value, kind, positive, src)
@@ -115,7 +185,8 @@ def _read_capped(path, src):
     try:
         size = path.stat().st_size
         if size <= MAX_SIDECAR_BYTES:
-            with open(path, "rb") as f:
+            # A FIFO or device planted under the name must not block the reader.
+            with open(path, "rb", opener=opener) as f:
                 data = f.read(MAX_SIDECAR_BYTES + 1)
             size = max(size, len(data))
     except OSError as exc:
@@ -169,16 +240,24 @@ def _sidecar_value(key, value, kind, positive, src):
         return value
     is_int = isinstance(value, int) and not isinstance(value, bool)
     if kind == "int" and not is_int:
-        raise InvalidSidecar("%s must be an integer, got %r" % (key, value),
+        raise InvalidSidecar("%s must be an integer, got %s" % (key, brief(value)),
                              code="sidecar.type", file=src, where=key,
                              fix="write a whole number")
     if not (is_int or isinstance(value, float)):
-        raise InvalidSidecar("%s must be a number, got %r" % (key, value),
+        raise InvalidSidecar("%s must be a number, got %s" % (key, brief(value)),
                              code="sidecar.type", file=src, where=key,
                              fix="write a plain number in mm, e.g. `%s: 2.0`" % key)
-    if not np.isfinite(value) or (positive and value <= 0) or (positive is False and value < 0):
-        raise InvalidSidecar("%s = %r is out of range" % (key, value), code="sidecar.value",
-                             file=src, where=key,
+    bound = {"copies": MAX_COPIES, "priority": MAX_PRIORITY}.get(key)
+    if bound is not None and abs(value) > bound:
+        raise InvalidSidecar("%s = %s is more than a sidecar may ask" % (key, brief(value)),
+                             code="sidecar.value", file=src, where=key,
+                             fix="use a number from 1 to %d (drop the file again for more "
+                                 "sheets)" % bound if key == "copies" else
+                                 "use a number from -%d to %d" % (bound, bound))
+    if abs(value) > _HUGE or not np.isfinite(value) or (positive and value <= 0) \
+            or (positive is False and value < 0):
+        raise InvalidSidecar("%s = %s is out of range" % (key, brief(value)),
+                             code="sidecar.value", file=src, where=key,
                              fix="use a number %s 0" % (">" if positive else ">="))
     return int(value) if kind == "int" else float(value)
 
