@@ -36,6 +36,9 @@ class WebConfig:
     host: str = "127.0.0.1"
     port: int = 8080
     token: str = None
+    # Host header names the page answers to besides localhost, IP addresses, this machine's
+    # name and web.host (a name a browser was led to by a stranger's DNS is refused).
+    allowed_hosts: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,12 @@ def _type_ok(value, kind):
 def _check(value, kind, key, src, lo=None, nullable=False):
     if value is None and nullable:
         return None
+    if kind is tuple:
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise HostdError("%s must be a list of host names" % key,
+                             code="config.type", file=src, key=key,
+                             fix="write e.g. `%s: [printers.example.org]`" % key.rsplit(".", 1)[-1])
+        return tuple(value)
     if not _type_ok(value, kind):
         raise HostdError("%s must be %s, got %r" % (key, {float: "a number", int: "an integer",
                                                           str: "a string"}[kind], value),

@@ -28,7 +28,7 @@ class Slot:
         self.name = config.name
         self.printer = None
         self.job_id = None           # store id of the job printing here
-        self.link_job = None         # hostd.printer.job.Job
+        self.link_job = None         # hostd.printer.process.JobProxy
         self.ending = None           # records a finished print once the store takes it
         self.progress_due = 0.0      # when its progress is next written to the store
         self.paused = False          # operator pause: no new jobs
@@ -47,11 +47,16 @@ class Slot:
         self._thread.start()
 
     def _connect(self):
-        from hostd.printer import Printer, PrinterError
+        from hostd.printer import PrinterError, PrinterProcess
         from pipeline.errors import PipelineError
         try:
+            if self.printer is not None and self.printer.ended:
+                self.printer.close()           # its process died: a new one takes over
+                self.printer = None
             if self.printer is None:
-                self.printer = Printer(self.config.port, link_settings(self.config))
+                # The link streams from a process of its own: the page's requests, the
+                # planner and the run loop take this process's GIL, never the stream's.
+                self.printer = PrinterProcess(self.config.port, link_settings(self.config))
             self.printer.connect()
             self.error = None
             log.info("printer %s connected (%s)", self.name, self.config.port)

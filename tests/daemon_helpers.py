@@ -206,12 +206,14 @@ class Pings:
 
 
 def in_process_daemon(tmp_path, time_scale, sim="", profile="generic-0.5mm", baud=2000000,
-                      token=None, **extra):
+                      token=None, port=None, **extra):
     """A daemon in this process with one simulated printer ``p1`` (no web server), set up.
 
     ``sim``: more ``sim://`` options (``"fault_reset_line=200"``); ``baud``: what the host
-    believes the printer's link runs at."""
-    port = "sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale + ("&" + sim if sim else "")
+    believes the printer's link runs at; ``port``: a port instead of ``sim://`` (a
+    :func:`pty_simulator`'s, whose executed commands the test reads)."""
+    port = port or ("sim://?time_scale=%g&advanced_ok=1&boot_s=0" % time_scale
+                    + ("&" + sim if sim else ""))
     printers = [{"name": "p1", "profile": profile, "baud": baud, "port": port}]
     config = load_config(write_config(tmp_path, printers=printers, heartbeat_s=0.2, **extra))
     config = dataclasses.replace(config, web=dataclasses.replace(config.web, port=None,
@@ -269,13 +271,13 @@ def drop(src, drop_dir, name):
 
 
 @contextlib.contextmanager
-def pty_simulator():
+def pty_simulator(**options):
     """A simulator on a real pty in this process (its executed commands are readable):
-    yields (simulator, port path)."""
+    yields (simulator, port path). ``options``: SimConfig fields over the fast defaults."""
     from hostd.printer.sim import Simulator
     from hostd.printer.simconfig import SimConfig
     folder = tempfile.mkdtemp(prefix="hostd-e2e-")
-    sim = Simulator(SimConfig(**FAST_SIM), link_path=os.path.join(folder, "printer"))
+    sim = Simulator(SimConfig(**dict(FAST_SIM, **options)), link_path=os.path.join(folder, "printer"))
     path = sim.start()
     try:
         yield sim, path

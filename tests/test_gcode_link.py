@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from daemon_helpers import in_process_daemon, write_dome
+from daemon_helpers import in_process_daemon, pty_simulator, write_dome
 from gcode_parser import parse, point_polyline_distance
 from hostd import jobs as J
 from hostd.feed import job_feed
@@ -96,7 +96,12 @@ def test_a_file_the_link_cannot_carry_is_reported_with_what_to_change():
 @pytest.mark.parametrize("baud", [2400, 2000000])
 def test_a_job_the_link_cannot_carry_prints_slower_and_says_so(tmp_path, baud):
     # The simulated wire runs fast whatever baud the host believes the printer has.
-    d = in_process_daemon(tmp_path, 0, sim="baud=2000000", baud=baud)
+    with pty_simulator() as (sim, port):
+        _feed_said(tmp_path, sim, port, baud)
+
+
+def _feed_said(tmp_path, sim, port, baud):
+    d = in_process_daemon(tmp_path, 0, port=port, baud=baud)
     try:
         write_dome(d.config.drop_dir / "dome.npy")
         deadline = time.monotonic() + 120
@@ -108,7 +113,7 @@ def test_a_job_the_link_cannot_carry_prints_slower_and_says_so(tmp_path, baud):
             job = (d.store.list() or [None])[0]
         gcode = d.printing.gcode(job)
         feed = job_feed(gcode, baud)
-        first = d.slots[0].printer.simulator.commands()
+        first = sim.commands()
         first = [c for c in first if not c.startswith(("M105", "M155", "M110", "M115"))][0]
         assert first == "M220 S%d" % feed.percent
         said = " ".join(e["message"] for e in d.store.events(job["id"]))

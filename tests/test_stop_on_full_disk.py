@@ -3,7 +3,7 @@ on the printer first, then are recorded when the job store has room."""
 
 import time
 
-from daemon_helpers import fill_store, ticking_daemon, write_dome
+from daemon_helpers import fill_store, pty_simulator, ticking_daemon, write_dome
 from hostd import jobs as J
 from hostd.web.app import create_app
 
@@ -56,12 +56,12 @@ def test_cancel_reaches_the_printer_when_the_store_is_full(tmp_path):
 
 
 def test_emergency_stop_reaches_the_printer_when_the_store_is_full(tmp_path):
-    with ticking_daemon(tmp_path, 0.01) as d:
+    with pty_simulator(time_scale=0.01) as (sim, port), \
+            ticking_daemon(tmp_path, 0.01, port=port) as d:
         d.config = _config(d.config)
         write_dome(d.config.drop_dir / "dome.npy")
         _wait(lambda: _printing(d), what="the print")
         view, client = _client(d)
-        sim = d.slots[0].printer.simulator
         r = client.post("/api/printers/p1/estop", headers={"Authorization": "Bearer " + TOKEN})
         assert r.status_code == 202 and "sent to the printer" in r.json["result"], r.json
         assert d.slots[0].paused

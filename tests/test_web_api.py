@@ -411,7 +411,7 @@ def test_slow_readers_of_a_large_file_leave_the_page_up(node):
     web = server.start(config, store=node.store)
     readers = []
     try:
-        readers = open_clients(web, b"GET /api/jobs/%s/files/big.gcode HTTP/1.1\r\nHost: x"
+        readers = open_clients(web, b"GET /api/jobs/%s/files/big.gcode HTTP/1.1\r\nHost: localhost"
                                     b"\r\n\r\n" % node.printing.encode(),
                                server.THREADS + 2, rcvbuf=4096)      # each reads nothing
         # The threads hand the files to the server's buffer and are free again; before,

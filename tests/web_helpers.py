@@ -47,11 +47,12 @@ def wait_http(url, timeout=30.0):
 class Chromium:
     """Headless Debian chromium driven over the DevTools protocol (one page)."""
 
-    def __init__(self, path=CHROMIUM):
+    def __init__(self, path=CHROMIUM, flags=()):
         import websocket
         self.profile = tempfile.mkdtemp(prefix="hostd-chromium-")
         port = free_port()
-        self.proc = subprocess.Popen([path, *CHROMIUM_FLAGS, "--user-data-dir=" + self.profile,
+        self.proc = subprocess.Popen([path, *CHROMIUM_FLAGS, *flags,
+                                      "--user-data-dir=" + self.profile,
                                       "--remote-debugging-address=127.0.0.1",
                                       "--remote-debugging-port=%d" % port, "about:blank"],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

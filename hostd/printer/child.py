@@ -20,8 +20,11 @@ def _child_main(conn):
 
     def forward(event):
         job = printer.job
+        stats = dict(printer.stats)
+        if printer.simulator is not None:    # sim:// runs here: its planner's starvation too
+            stats["starvation_s"] = printer.simulator.firmware.stats.get("starvation_s")
         mirror = dict(state=printer.state, job=job.snapshot() if job else None,
-                      temps=printer.temperatures.current(), stats=dict(printer.stats),
+                      temps=printer.temperatures.current(), stats=stats,
                       capabilities=dict(printer.capabilities), firmware=dict(printer.firmware_info),
                       last_error=printer.last_error)
         with send_lock:

@@ -101,6 +101,11 @@ class PrinterProcess(Publisher):
     def estop(self):
         return self._call("estop")
 
+    @property
+    def ended(self):
+        """True once the child process is gone (crashed or closed): connect no more."""
+        return self._process.poll() is not None
+
     def close(self):
         if self._process.poll() is None:
             try:

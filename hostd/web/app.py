@@ -16,7 +16,7 @@ from flask import Flask, render_template, request
 
 from hostd import jobs as J
 from hostd.errors import HostdError
-from hostd.web import api, pages
+from hostd.web import api, hosts, pages
 from hostd.web.view import NodeView
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
@@ -72,6 +72,7 @@ def create_app(config, store=None, daemon=None):
     add_error_pages(app)
     pages.add_pages(app, DESTRUCTIVE)
     pages.add_form_actions(app, DESTRUCTIVE)
+    app.wsgi_app = hosts.HostGuard(app.wsgi_app, hosts.Names(config.web))
     return app
 
 

@@ -14,10 +14,15 @@ log = logging.getLogger("hostd.web")
 THREADS = 6
 # A farm's page must stay up for the people who need it while slow or stuck clients hold
 # connections: room for many idle sockets (cheap), and an idle one is closed after
-# CHANNEL_TIMEOUT_S (waitress checks every CLEANUP_S).
+# CHANNEL_TIMEOUT_S (checked every CLEANUP_S). A request head must arrive whole within
+# HEAD_TIMEOUT_S, and past WAITING_LIMIT connections the one waiting longest for a request
+# of its own is closed for a new one: the rest up to CONNECTION_LIMIT is a reserve that
+# clients trickling headers cannot take (see hostd.web.heads).
 CONNECTION_LIMIT = 500
+WAITING_LIMIT = 400
+HEAD_TIMEOUT_S = 10.0
 CHANNEL_TIMEOUT_S = 30
-CLEANUP_S = 5
+CLEANUP_S = 1
 # A response larger than this makes its thread wait for the client to read it: above any
 # outbox file (the largest G-code is ~70 MB), a slow reader's download is left to the
 # server's buffer (on disk past 1 MB) and never holds one of the few threads.
@@ -67,22 +72,22 @@ def start(config, store=None, daemon=None, threads=THREADS):
 
 
 def _start(config, store, daemon, threads):
-    from waitress import create_server
-
     from hostd.web.app import create_app
+    from hostd.web.heads import create_server
     app = create_app(config, store=store, daemon=daemon)
     try:
-        server = create_server(app, host=config.web.host, port=config.web.port, threads=threads,
-                               ident="hostd", clear_untrusted_proxy_headers=True,
-                               connection_limit=CONNECTION_LIMIT,
-                               channel_timeout=CHANNEL_TIMEOUT_S, cleanup_interval=CLEANUP_S,
-                               outbuf_high_watermark=OUTPUT_BUFFER_BYTES,
-                               max_request_body_size=app.config["MAX_CONTENT_LENGTH"] + 65536)
+        server, port = create_server(
+            app, HEAD_TIMEOUT_S, WAITING_LIMIT, host=config.web.host, port=config.web.port,
+            threads=threads, ident="hostd", clear_untrusted_proxy_headers=True,
+            connection_limit=CONNECTION_LIMIT, asyncore_use_poll=True,
+            channel_timeout=CHANNEL_TIMEOUT_S, cleanup_interval=CLEANUP_S,
+            outbuf_high_watermark=OUTPUT_BUFFER_BYTES,
+            max_request_body_size=app.config["MAX_CONTENT_LENGTH"] + 65536)
     except OSError as exc:
         log.warning("web page not started: cannot listen on %s:%s (%s); set web.port in "
                     "hostd.yaml to a free port", config.web.host, config.web.port, exc.strerror)
         return None
-    url = public_url(config.web.host, int(server.effective_port))
+    url = public_url(config.web.host, port)
     web = WebServer(server, url)
     web.thread.start()
     log.info("status page on %s%s", url, "" if config.web.token else

@@ -369,6 +369,8 @@ class NodeView:
                 sim = getattr(printer, "simulator", None)
                 if sim is not None:
                     starvation = sim.firmware.stats.get("starvation_s")
+                else:        # the link's own process reports its simulator's figure
+                    starvation = printer.stats.get("starvation_s")
             link_job = slot.link_job
             if link_job is not None:
                 live = link_job.snapshot()
