@@ -205,7 +205,8 @@ def test_octorest_upload_becomes_a_job_and_prints(tmp_path):
                 str(tmp_path / "in" / "dome.npy"))
     finally:
         d.stop()
-    assert key and key not in d.output()
+    assert key and key not in d.output() and r[1]["app_token"] not in d.output()
+    assert "octorest" in d.output()          # the request is logged, without its secrets
 
 
 def browse(service, seconds):
