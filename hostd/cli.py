@@ -13,7 +13,7 @@ import sys
 from pipeline import __version__
 
 # Order is the order shown in --help.
-COMMANDS = ["run", "plan", "stream", "sim_printer", "calibrate", "jobs", "token"]
+COMMANDS = ["run", "plan", "stream", "sim_printer", "calibrate", "jobs", "token", "keys"]
 
 
 def build_parser():

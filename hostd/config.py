@@ -39,6 +39,7 @@ class WebConfig:
     # Host header names the page answers to besides localhost, IP addresses, this machine's
     # name and web.host (a name a browser was led to by a stranger's DNS is refused).
     allowed_hosts: tuple = ()
+    announce: bool = None     # zeroconf; None: when the page listens beyond localhost
 
 
 @dataclass(frozen=True)
@@ -116,10 +117,12 @@ def _check(value, kind, key, src, lo=None, nullable=False):
         return tuple(value)
     if not _type_ok(value, kind):
         raise HostdError("%s must be %s, got %r" % (key, {float: "a number", int: "an integer",
-                                                          str: "a string"}[kind], value),
+                                                          str: "a string",
+                                                          bool: "true or false"}[kind], value),
                          code="config.type", file=src, key=key,
                          fix="write e.g. `%s: %s`" % (key.rsplit(".", 1)[-1],
-                                                      {float: "2.0", int: "1", str: "text"}[kind]))
+                                                      {float: "2.0", int: "1", str: "text",
+                                                      bool: "false"}[kind]))
     if lo is not None and kind is not str and value < lo:
         raise HostdError("%s = %r is too small (at least %s)" % (key, value, lo),
                          code="config.value", file=src, key=key, fix="use a value >= %s" % lo)

@@ -64,6 +64,9 @@ def create_app(config, store=None, daemon=None):
     app.register_blueprint(api.bp)
     app.register_blueprint(octoprint.bp)
     app.register_blueprint(metrics.bp)
+    from hostd.web import appkeys, octoclient, octofiles
+    for module in (appkeys, octoclient, octofiles):
+        app.register_blueprint(module.bp)
     app.jinja_env.filters.update(duration=_duration, when=_when, chart=_chart_points,
                                   sentence=problem_sentence)
     app.context_processor(lambda: {"node_id": config.node_id,

@@ -3,7 +3,8 @@
 Same field names, types and meanings as OctoPrint's, so farm dashboards and home-automation
 integrations that poll OctoPrint can watch a hostd node unchanged. OctoPrint drives one
 printer; a hostd node may have several: ``?printer=NAME`` picks one (default: the first).
-The ``X-Api-Key`` header those clients send is accepted and ignored (reads are public).
+Reads are public; an ``X-Api-Key`` those clients send must be an approved application key
+(:mod:`hostd.web.appkeys`), which also lets them act (:mod:`hostd.web.octoclient`).
 """
 
 from flask import Blueprint, jsonify, request

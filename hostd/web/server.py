@@ -36,6 +36,7 @@ class WebServer:
         self.server = server
         self.url = url
         self.thread = threading.Thread(target=self._serve, name="hostd-web", daemon=True)
+        self.announcer = None     # zeroconf, while the node is announced
 
     def _serve(self):
         try:
@@ -45,6 +46,9 @@ class WebServer:
                 log.exception("web server stopped")
 
     def stop(self):
+        announcer, self.announcer = self.announcer, None
+        if announcer is not None:
+            announcer.close()
         server, self.server = self.server, None
         if server is not None:
             server.close()
@@ -72,6 +76,7 @@ def start(config, store=None, daemon=None, threads=THREADS):
 
 
 def _start(config, store, daemon, threads):
+    from hostd import announce
     from hostd.web.app import create_app
     from hostd.web.heads import create_server
     app = create_app(config, store=store, daemon=daemon)
@@ -90,6 +95,7 @@ def _start(config, store, daemon, threads):
     url = public_url(config.web.host, port)
     web = WebServer(server, url)
     web.thread.start()
+    web.announcer = announce.start(config, port)
     log.info("status page on %s%s", url, "" if config.web.token else
              " (actions off: no web.token configured)")
     return web
