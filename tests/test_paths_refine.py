@@ -4,6 +4,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from pipeline.paths import refine, stripes
+from pipeline.paths.phase import _wrap
 from pipeline.paths.sheet import Sheet
 
 WIDTH = 0.5
@@ -20,12 +21,12 @@ def test_split_triangles_carry_the_phase_along_each_side():
     along a side) keep their phase at every new midpoint."""
     xy, faces = _grid()
     X = np.tile([0.0, 1.0], (len(xy), 1))
-    phase = stripes._wrap(2 * np.pi * xy[:, 1] / WIDTH)
+    phase = _wrap(2 * np.pi * xy[:, 1] / WIDTH)
     red = np.zeros(len(faces), bool)
     red[::3] = True
     xy2, faces2, ph2, X2, parent = refine.split(xy, faces, phase, X, WIDTH, red)
     assert len(xy2) > len(xy) and np.array_equal(ph2[:len(xy)], phase)
-    want = stripes._wrap(2 * np.pi * xy2[:, 1] / WIDTH)
+    want = _wrap(2 * np.pi * xy2[:, 1] / WIDTH)
     assert np.allclose(np.cos(ph2 - want), 1.0)
     # Every triangle lies inside the one it came from, and the areas add up.
     area = np.abs(stripes.signed_areas_2d(xy2, faces2))

@@ -156,7 +156,7 @@ def test_merged_shrink_is_the_length_weighted_mean():
 def test_path_samples_of_all_paths_at_once_are_those_of_each_path():
     """The samples the figures are measured on, made for thousands of stripe pieces in
     one pass: the same points, in the same order, as path by path (end points kept)."""
-    from pipeline.paths.stats import _densify, sample_tree
+    from pipeline.paths.samples import _densify, sample_tree
     rng = np.random.default_rng(0)
     paths = [np.cumsum(rng.normal(size=(rng.integers(2, 9), 2)), axis=0) for _ in range(40)]
     samples, label, tree = sample_tree(paths, 0.12)

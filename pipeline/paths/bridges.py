@@ -15,7 +15,7 @@ import numpy as np
 from pipeline.geometry import polyline_arc
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
-from pipeline.paths.stats import nearest_other, sample_tree
+from pipeline.paths.samples import nearest_other, sample_tree
 
 # A bridge is laid where the two paths lie this far apart (in path widths) at both
 # rungs, a path width apart along the ring; along its neighbour (round a small ring, the

@@ -11,7 +11,7 @@ shorter path gives way, so a piece is not cut back from both sides of one gap.
 
 import numpy as np
 
-from pipeline.paths.stats import sample_tree
+from pipeline.paths.samples import sample_tree
 
 # Ends crowded closer than this many path widths are cut back: on the coast tile 0.8
 # cuts the overlap of the finer triangles' paths to a third (4.6 -> 1.5 %) for a

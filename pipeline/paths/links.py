@@ -19,7 +19,7 @@ all would cost more than the rest of the matching.
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.paths.stats import sample_tree
+from pipeline.paths.samples import sample_tree
 
 # Neighbours looked at per hop sample: enough that the two joined paths' own samples
 # (a quarter width apart) cannot hide a third path within half a width.

@@ -14,7 +14,8 @@ patch shrinks to a sixteenth.
 
 import numpy as np
 
-from pipeline.geometry import face_sides
+from pipeline.paths.phase import _wrap, corner_phases, stripe_matrix, vertex_line_field
+from pipeline.paths.sheet import split_mesh
 
 # Jacobi sweeps of the stripe energy on the split triangles: on the real tiles 10 gave
 # the coverage and overlap of a full solve there (30 and 100 no better).
@@ -25,7 +26,7 @@ FORK_SPLITS = 2
 
 def split(xy, faces, phase, X, width_mm, red):
     """Split the triangles ``red`` ((m,) bool) in four, and in two those of their
-    neighbours that share one split side (:func:`split_mesh`).
+    neighbours that share one split side (:func:`pipeline.paths.sheet.split_mesh`).
 
     Each new vertex, the midpoint of a side from ``a`` to ``b``, takes the line field
     ``X[a] + X[b]`` (turned to agree) and the phase of ``a`` plus half the side's step,
@@ -37,55 +38,9 @@ def split(xy, faces, phase, X, width_mm, red):
     return xy2, faces2, phase2, X2, parent
 
 
-def split_mesh(xy, faces, red):
-    """The triangles ``red`` ((m,) bool) split in four at their sides' midpoints, and in
-    two those of their neighbours that share one split side (three-way splits would need
-    more, so a neighbour with two split sides is split in four too).
-
-    Returns (xy (n2, 2), faces (m2, 3), parent: (m2,) the input triangle of each, sides:
-    (n2 - n, 2) the two ends of the side each new vertex halves, in the order of
-    :func:`pipeline.geometry.unique_edges`)."""
-    n = len(xy)
-    red = np.asarray(red, bool).copy()
-    if not red.any():
-        return xy, faces, np.arange(len(faces)), np.zeros((0, 2), np.int64)
-    fe, edges = face_sides(faces)
-    while True:
-        marked = np.zeros(len(edges), bool)
-        marked[fe[red].ravel()] = True
-        count = marked[fe].sum(axis=1)
-        more = ~red & (count >= 2)
-        if not more.any():
-            break
-        red |= more
-    me = np.flatnonzero(marked)
-    mid = np.full(len(marked), -1)
-    mid[me] = n + np.arange(len(me))
-    sides = edges[me]
-    mid, marked = mid[fe], marked[fe]
-    xy2 = np.vstack([xy, 0.5 * (xy[sides[:, 0]] + xy[sides[:, 1]])])
-    r = np.flatnonzero(red)
-    A, B, C = faces[r].T
-    ab, bc, ca = mid[r, 0], mid[r, 1], mid[r, 2]
-    out = [np.stack(t, axis=1) for t in ((A, ab, ca), (ab, B, bc), (ca, bc, C), (ab, bc, ca))]
-    parent = [r] * 4
-    g = np.flatnonzero(~red & (count == 1))
-    k = np.argmax(marked[g], axis=1)                   # the split side: corners k, k + 1
-    i0, i1, i2 = faces[g, k], faces[g, (k + 1) % 3], faces[g, (k + 2) % 3]
-    m = mid[g, k]
-    out += [np.stack([i0, m, i2], axis=1), np.stack([m, i1, i2], axis=1)]
-    parent += [g, g]
-    keep = np.flatnonzero(count == 0)
-    out.append(faces[keep])
-    parent.append(keep)
-    return xy2, np.concatenate(out), np.concatenate(parent), sides
-
-
 def carry(xy, phase, X, sides, width_mm):
     """``phase`` and ``X`` ((n,), (n, 2)) with values appended for the midpoints of
-    ``sides`` ((k, 2) vertex ids, :func:`split_mesh`): ((n + k,), (n + k, 2))."""
-    from pipeline.paths.stripes import _wrap
-
+    ``sides`` ((k, 2) vertex ids, :func:`pipeline.paths.sheet.split_mesh`): ((n + k,), (n + k, 2))."""
     a, b = sides[:, 0], sides[:, 1]
     s = np.where(np.einsum("ec,ec->e", X[a], X[b]) < 0, -1.0, 1.0)
     om = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[b] - xy[a],
@@ -101,8 +56,6 @@ def relax(sheet, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS):
     stripe_phase` from ``phase`` (given along ``X``), on the triangles of ``sheet``
     (:class:`pipeline.paths.sheet.Sheet`) with the line field ``normal`` per triangle.
     Returns (phase, X) as ``stripe_phase``."""
-    from pipeline.paths.stripes import stripe_matrix, vertex_line_field
-
     Xn = vertex_line_field(sheet, normal)
     # A vertex whose new line field points the other way sees the conjugate value.
     phase = np.where(np.einsum("nc,nc->n", Xn, X) < 0, -phase, phase)
@@ -122,9 +75,7 @@ def refine_phase(sheet, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS,
     ``fork_splits`` times more.
 
     Returns (xy, faces, phase, X, parent: (m2,) the input triangle of each,
-    u and pathless of :func:`pipeline.paths.stripes.corner_phases` on these triangles)."""
-    from pipeline.paths.stripes import corner_phases
-
+    u and pathless of :func:`pipeline.paths.phase.corner_phases` on these triangles)."""
     fine, parent, sides = sheet.quartered
     phase, X = carry(sheet.xy, phase, X, sides, width_mm)
     phase, X = relax(fine, normal[parent], phase, X, width_mm, sweeps)

@@ -19,7 +19,7 @@ import numpy as np
 from pipeline.geometry import polyline_arc, polyline_length
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
-from pipeline.paths.stats import nearest_other, sample_tree
+from pipeline.paths.samples import nearest_other, sample_tree
 
 # An end within AT_EDGE path widths of the outline is joined to the path beside it that
 # far off (path widths), whose tail lies within ALONG_EDGE widths of the outline all along

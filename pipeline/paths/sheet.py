@@ -93,6 +93,49 @@ class Sheet:
         """Every triangle split in four at its sides' midpoints: (the finer
         :class:`Sheet`, (m4,) the triangle each came from, (k, 2) the side each new
         vertex halves, new vertices numbered from n in this order)."""
-        from pipeline.paths.refine import split_mesh
         xy, faces, parent, sides = split_mesh(self.xy, self.faces, np.ones(len(self.faces), bool))
         return Sheet(xy, faces), parent, sides
+
+
+def split_mesh(xy, faces, red):
+    """The triangles ``red`` ((m,) bool) split in four at their sides' midpoints, and in
+    two those of their neighbours that share one split side (three-way splits would need
+    more, so a neighbour with two split sides is split in four too).
+
+    Returns (xy (n2, 2), faces (m2, 3), parent: (m2,) the input triangle of each, sides:
+    (n2 - n, 2) the two ends of the side each new vertex halves, in the order of
+    :func:`pipeline.geometry.unique_edges`)."""
+    n = len(xy)
+    red = np.asarray(red, bool).copy()
+    if not red.any():
+        return xy, faces, np.arange(len(faces)), np.zeros((0, 2), np.int64)
+    fe, edges = face_sides(faces)
+    while True:
+        marked = np.zeros(len(edges), bool)
+        marked[fe[red].ravel()] = True
+        count = marked[fe].sum(axis=1)
+        more = ~red & (count >= 2)
+        if not more.any():
+            break
+        red |= more
+    me = np.flatnonzero(marked)
+    mid = np.full(len(marked), -1)
+    mid[me] = n + np.arange(len(me))
+    sides = edges[me]
+    mid, marked = mid[fe], marked[fe]
+    xy2 = np.vstack([xy, 0.5 * (xy[sides[:, 0]] + xy[sides[:, 1]])])
+    r = np.flatnonzero(red)
+    A, B, C = faces[r].T
+    ab, bc, ca = mid[r, 0], mid[r, 1], mid[r, 2]
+    out = [np.stack(t, axis=1) for t in ((A, ab, ca), (ab, B, bc), (ca, bc, C), (ab, bc, ca))]
+    parent = [r] * 4
+    g = np.flatnonzero(~red & (count == 1))
+    k = np.argmax(marked[g], axis=1)                   # the split side: corners k, k + 1
+    i0, i1, i2 = faces[g, k], faces[g, (k + 1) % 3], faces[g, (k + 2) % 3]
+    m = mid[g, k]
+    out += [np.stack([i0, m, i2], axis=1), np.stack([m, i1, i2], axis=1)]
+    parent += [g, g]
+    keep = np.flatnonzero(count == 0)
+    out.append(faces[keep])
+    parent.append(keep)
+    return xy2, np.concatenate(out), np.concatenate(parent), sides
