@@ -22,7 +22,8 @@ BEGIN, END = "<!-- figures:begin -->", "<!-- figures:end -->"
 
 # Whole-plan columns: header, how to read it from a model's result (None: leave blank).
 # Columns whose every cell is blank are left out, so keys a method adds show when present.
-PLAN_COLUMNS = [
+# One table per question, each at most 12 columns (the model's among them).
+FORM_COLUMNS = [
     ("model", lambda n, r: n),
     ("method", lambda n, r: r.get("method")),
     ("LD mm", lambda n, r: _f(r.get("longest_diameter_mm"), 0)),
@@ -34,13 +35,26 @@ PLAN_COLUMNS = [
     ("fit smoothed mm", lambda n, r: _f(r.get("fit_smooth_mm"), 0)),
     ("fit moved mm", lambda n, r: _f(r.get("fit_removed_mm"), 2)),
     ("reach p90", lambda n, r: _f(r.get("reach_p90"), 2)),
+    ("printable", lambda n, r: _yes(r.get("printable"))),
+]
+SHAPE_COLUMNS = [
+    ("model", lambda n, r: n),
     ("sim. displacement", lambda n, r: _disp(r)),
     ("of relief", lambda n, r: _pct(r.get("mean_displacement_of_relief"))),
+    ("full-res. settle mm", lambda n, r: _f(r.get("reference_displacement_mm"), 2)),
+    ("fast vs full", lambda n, r: _against(r.get("mean_displacement_mm"),
+                                           r.get("reference_displacement_mm"))),
     ("at rest", lambda n, r: _rest(r)),
+    ("to the input mm", lambda n, r: _fid(r, "mean_mm", 2)),
+    ("p90 mm", lambda n, r: _fid(r, "p90_mm", 2)),
+    ("relief reached", lambda n, r: _pct((r.get("fidelity") or {}).get("relief_reached"))),
     ("arm tips mm", lambda n, r: None if not r.get("arm_tips_mm") else
      "max %.1f" % max(r["arm_tips_mm"])),
     ("holds smoothed to", lambda n, r: None if r.get("hold_smooth_mm") is None else
      "%g mm: %s" % (r["hold_smooth_mm"], _pct(r.get("hold_displacement")))),
+]
+PATH_COLUMNS = [
+    ("model", lambda n, r: n),
     ("traces", lambda n, r: _traces(r)),
     ("trace ends inside", lambda n, r: r.get("ends_inside")),
     ("ring bridges", lambda n, r: r.get("ring_bridges")),
@@ -52,17 +66,46 @@ PLAN_COLUMNS = [
     ("hops over paths", lambda n, r: _pct(r.get("hop_overprint_share"))),
     ("of it dry", lambda n, r: _pct(r.get("hop_dry_share"))),
     ("direction p95 deg", lambda n, r: _f((r.get("direction_angle_deg") or {}).get("p95"), 1)),
-    ("load to simulation s", lambda n, r: _median(r, "load_to_simulation_s")),
-    ("all stages s", lambda n, r: _median(r, "all_stages_s")),
-    ("wall s", lambda n, r: _median(r, "wall_s")),
-    ("paths + G-code s", lambda n, r: _f(r.get("toolpath_gcode_s"), 1)),
-    ("looks s", lambda n, r: _f(r.get("looks_s"), 1) if r.get("looks_s") else None),
-    ("peak RSS MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
     ("G-code lines", lambda n, r: _k(r.get("gcode_lines"))),
-    ("moves/s", lambda n, r: _f(r.get("moves_per_s"), 0)),
-    ("link moves/s", lambda n, r: _f(r.get("link_moves_per_s"), 0)),
 ]
-HEADLINE = ("dome", "vancouver_island_south", "coast_mountains_bc")
+TIME_COLUMNS = [
+    ("model", lambda n, r: n),
+    ("fit s", lambda n, r: _stage(r, "fit")),
+    ("layout s", lambda n, r: _stage(r, "mesh", "flatten")),
+    ("simulate s", lambda n, r: _stage(r, "simulate")),
+    ("paths s", lambda n, r: _stage(r, "toolpath")),
+    ("G-code s", lambda n, r: _stage(r, "gcode")),
+    ("pictures s", lambda n, r: _stage(r, "pictures")),
+    ("other s", lambda n, r: _other(r)),
+    ("all stages s", lambda n, r: _all(r)),
+    ("wall s", lambda n, r: _median(r, "wall_s")),
+    ("peak RSS MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
+    ("moves/s", lambda n, r: _moves(r)),
+]
+TABLES = [
+    ("Does it form", "the layout, the fit and the gate's verdict", FORM_COLUMNS),
+    ("How close the sheet comes", "the simulated sheet against the target planned (`sim. "
+     "displacement`; `full-res. settle`: the same program settled at full resolution, in the "
+     "benchmark only) and against the input as given (`to the input`, `p90`, `relief "
+     "reached`)", SHAPE_COLUMNS),
+    ("The paths", "the lower layers' paths unless a column says otherwise", PATH_COLUMNS),
+    ("Time and memory", "CPU seconds per stage on one core (BLAS threads 1) where the result "
+     "has them, else wall seconds; `other`: load, validate, imports and the looks at other "
+     "methods; `all stages`: CPU (wall where no CPU was kept); `moves/s`: the G-code's, then "
+     "over the link", TIME_COLUMNS),
+]
+# The README's block: at most 8 columns.
+README_COLUMNS = [
+    ("model", lambda n, r: n),
+    ("size mm", lambda n, r: _f(r.get("longest_diameter_mm"), 0)),
+    ("distance to the shape", lambda n, r: _distance(r)),
+    ("printable", lambda n, r: _yes(r.get("printable"))),
+    ("traces", lambda n, r: _traces(r)),
+    ("plan s", lambda n, r: _all(r)),
+    ("print time", lambda n, r: _hours(r.get("estimated_print_s"))),
+    ("peak MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
+]
+HEADLINE = ("dome", "vancouver_island_south", "coast_mountains_bc", "rough_terrain")
 
 
 def conditions():
@@ -131,8 +174,8 @@ def render(groups):
         for model, r in _models(groups.get(name, {}).get("results", {})).items():
             models[model] = r
     if models:
-        out += ["## Whole plan (`benchmarks/pipeline.py`)", "", *_table(models), ""]
-        out += _conditions(groups, ("plan", "terrain", "fine_map"))
+        out += ["## Whole plan (`benchmarks/pipeline.py`)", ""]
+        out += _tables(models, _conditions(groups, ("plan", "terrain", "fine_map")), "###")
     both = _models(groups.get("methods", {}).get("results", {}))
     if both:
         out += ["## Both layout methods, one simulation (`benchmarks/pipeline.py --only methods`)",
@@ -165,8 +208,8 @@ def render(groups):
                 "(above 0.4 narrow features do not form). Load to "
                 "simulation counts the fit (it solves the plan's layout). `of relief`: the mean "
                 "displacement over the relief planned (a quarter or more and the hills and "
-                "valleys hardly show).", "", *_table(both), ""]
-        out += _conditions(groups, ("methods",))
+                "valleys hardly show).", ""]
+        out += _tables(both, _conditions(groups, ("methods",)), "###")
     layout = _models(groups.get("layout", {}).get("results", {}))
     if layout:
         out += ["## Layout methods side by side (`benchmarks/pipeline.py --only layout`)", "",
@@ -213,12 +256,16 @@ def headline(groups):
                 models[model if name == "methods" else model + " (isoline, paper's sim.)"] = r
     if not models:
         return "No benchmark has been run yet: `python benchmarks/pipeline.py`."
-    cond = next((groups[g]["conditions"] for g in ("plan", "terrain") if g in groups), {})
+    cond = next((groups[g]["conditions"] for g in ("plan", "terrain", "methods")
+                 if g in groups), {})
     runs = sorted({"%s (%s)" % (groups[g]["conditions"].get("commit", "?"),
                                 groups[g]["conditions"].get("date", "?"))
                    for g in ("plan", "terrain", "methods") if g in groups})
-    return "\n".join(_table(models, brief=True) + [
-        "", "%s, one core, commits %s. Rows marked `free` or `isoline` are checked by the "
+    return "\n".join(_table(models, README_COLUMNS) + [
+        "", "%s, one core (BLAS threads 1), commits %s. `plan s`: every stage's CPU seconds "
+        "with the imports (wall seconds where a run kept no CPU time); `distance to the "
+        "shape`: the simulated sheet from the input as given where the report measures it, "
+        "else from the target planned. Rows marked `free` or `isoline` are checked by the "
         "thin-shell simulation (the free method's relief fitted to the material); the paper's "
         "simulation is the shipped default for the isoline method. Every figure, with its "
         "conditions: [docs/figures.md](docs/figures.md)." % (cond.get("cpu", "?"),
@@ -252,14 +299,26 @@ def _models(results):
     return out
 
 
-def _table(models, brief=False):
-    keep = {"model", "LD mm", "invalid area", "fit scale", "sim. displacement", "of relief",
-            "traces",
-            "coverage", "all stages s", "peak RSS MB", "moves/s"}
-    cols = [(h, f) for h, f in PLAN_COLUMNS if not brief or h in keep]
-    cells = {name: [f(name, r) for _, f in cols] for name, r in models.items()}
-    used = [i for i in range(len(cols)) if any(c[i] not in (None, "") for c in cells.values())]
-    lines = ["| " + " | ".join(cols[i][0] for i in used) + " |",
+def _tables(models, conditions, level):
+    """One table per question of :data:`TABLES` for ``models``, each headed by the
+    question, what it shows, and the ``conditions`` lines of its runs."""
+    out = []
+    for title, shows, columns in TABLES:
+        rows = _table(models, columns)
+        if rows:
+            out += ["%s %s" % (level, title), "", shows[0].upper() + shows[1:] + ".", "",
+                    *rows, "", *conditions]
+    return out
+
+
+def _table(models, columns):
+    """Markdown rows of ``models`` under ``columns`` ((header, reader) pairs), the
+    columns blank on every model left out; [] where only the model's is left."""
+    cells = {name: [f(name, r) for _, f in columns] for name, r in models.items()}
+    used = [i for i in range(len(columns)) if any(c[i] not in (None, "") for c in cells.values())]
+    if len(used) <= 1:
+        return []
+    lines = ["| " + " | ".join(columns[i][0] for i in used) + " |",
              "|" + "---|" * len(used)]
     for row in cells.values():
         lines.append("| " + " | ".join("" if row[i] is None else str(row[i]) for i in used) + " |")
@@ -309,6 +368,71 @@ def _rest(r):
     return "%s (%s + %s)" % ("yes" if r["simulation_converged"] else "no",
                              r.get("coarse_iterations", 0),
                              r.get("simulation_iterations", 0) - r.get("coarse_iterations", 0))
+
+
+def _yes(v):
+    return None if v is None else ("yes" if v else "no")
+
+
+def _fid(r, key, digits):
+    return _f((r.get("fidelity") or {}).get(key), digits)
+
+
+def _against(fast, full):
+    """The fast settle's mean displacement against the full-resolution one's."""
+    if fast is None or full is None:
+        return None
+    return "%+.2f mm (%+.0f %%)" % (fast - full, 100 * (fast - full) / max(full, 1e-9))
+
+
+def _distance(r):
+    """Distance to the shape: to the input as given where the report has it, else the
+    simulated sheet's mean displacement from the target planned."""
+    mean = (r.get("fidelity") or {}).get("mean_mm")
+    if mean is not None:
+        return "%.2f mm" % mean
+    return None if r.get("mean_displacement_mm") is None else "%.2f mm" % r["mean_displacement_mm"]
+
+
+def _stage(r, *names):
+    """CPU seconds of the stages ``names`` (wall, from ``timing_s``, where no CPU kept)."""
+    stages = r.get("stages")
+    if stages:
+        got = [stages[n]["cpu_s"] for n in names if n in stages]
+        return _f(sum(got), 1) if got else None
+    got = [(r.get("timing_s") or {}).get(n) for n in names]
+    got = [g for g in got if g is not None]
+    return _f(sum(got), 1) if got else None
+
+
+def _other(r):
+    stages = r.get("stages")
+    if not stages:
+        return None
+    main = {"fit", "mesh", "flatten", "simulate", "toolpath", "gcode", "pictures"}
+    rest = sum(v["cpu_s"] for k, v in stages.items() if k not in main)
+    return _f(rest + (r.get("imports") or {}).get("cpu_s", 0.0), 1)
+
+
+def _all(r):
+    """Every stage's CPU seconds and the imports (else the wall seconds kept)."""
+    if r.get("cpu_s") is not None:
+        return _f(r["cpu_s"] + (r.get("imports") or {}).get("cpu_s", 0.0), 1)
+    return _median(r, "all_stages_s")
+
+
+def _moves(r):
+    if r.get("moves_per_s") is None:
+        return None
+    link = r.get("link_moves_per_s")
+    return "%.0f" % r["moves_per_s"] + ("" if link is None else " / %.0f" % link)
+
+
+def _hours(seconds):
+    if seconds is None:
+        return None
+    minutes = int(round(seconds / 60.0))
+    return "%d h %02d min" % divmod(minutes, 60)
 
 
 def _spacing(s):

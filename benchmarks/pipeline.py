@@ -35,12 +35,19 @@ ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREAD
 TARGETS = {
     "flatten_20k_s": 1.5, "flatten_200k_s": 20.0,
     "plan_load_to_simulation_175mm_s": 10.0, "plan_175mm_total_s": 15.0, "plan_peak_rss_mb": 1024,
+    # One core: every stage of a 175 mm model, of a real tile fitted, the pictures, memory.
+    "methods_175mm_all_stages_cpu_s": 10.0, "methods_175mm_tile_fitted_cpu_s": 12.0,
+    "methods_simulate_cpu_s": 3.0, "methods_pictures_cpu_s": 1.0, "methods_peak_rss_mb": 400,
 }
 
 
-def _child(code, *args):
-    """Run ``code`` in a child on one core; it prints one JSON object."""
+def _child(code, *args, reference=False):
+    """Run ``code`` in a child on one core; it prints one JSON object. ``reference``:
+    the child also settles the plan's program by :data:`REFERENCE_SETTLE`, if set."""
     env = dict(os.environ, **ONE_CORE)
+    env.pop("HOSTD_BENCH_REFERENCE", None)
+    if reference and REFERENCE_SETTLE:
+        env["HOSTD_BENCH_REFERENCE"] = REFERENCE_SETTLE
     pre = ("import os, sys, json, time, resource\n"
            "os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})\n")
     out = subprocess.run([sys.executable, "-c", pre + code, *args], env=env, cwd=ROOT,
@@ -70,19 +77,58 @@ print(json.dumps({"triangles": len(mesh.faces), "l_u_mm": round(lu, 3), "iterati
 """
 
 PLAN = r"""
+t_imp, c_imp = time.perf_counter(), time.process_time()
 from pipeline.profiles.profile import load_profile
 from hostd import planner
+imports = {"wall_s": round(time.perf_counter() - t_imp, 3),
+           "cpu_s": round(time.process_time() - c_imp, 3)}
 path, outdir = sys.argv[1], sys.argv[2]
 method = sys.argv[3] if len(sys.argv) > 3 else None
 force_fit = "fit" in sys.argv[4:]
+reference = os.environ.get("HOSTD_BENCH_REFERENCE")
 prof = load_profile("generic-0.5mm")
 if "shell" in sys.argv[4:]:
     import dataclasses
     prof = dataclasses.replace(prof, flatten=dataclasses.replace(prof.flatten, simulation="shell"))
+# Each stage's wall and CPU time from the progress calls that open it (the plan's own
+# timing_s is wall time only); the G-code inside the writing stage is clocked apart, so
+# the pictures are what is left of it.
+marks, gcode_cpu = [], [0.0, 0.0]
+def progress(stage, message):
+    marks.append((stage, time.perf_counter(), time.process_time()))
+write_gcode = planner._write_gcode
+def clocked(*a, **k):
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        return write_gcode(*a, **k)
+    finally:
+        gcode_cpu[0] += time.perf_counter() - t0
+        gcode_cpu[1] += time.process_time() - c0
+planner._write_gcode = clocked
 t = time.perf_counter()
-plan = planner.run(path, prof, outdir, method=method, force_fit=force_fit)
+plan = planner.run(path, prof, outdir, method=method, force_fit=force_fit, progress=progress)
+marks.append(("end", time.perf_counter(), time.process_time()))
 wall = time.perf_counter() - t
+stages = {}
+for (name, t0, c0), (_, t1, c1) in zip(marks[:-1], marks[1:]):
+    was = stages.get(name, {"wall_s": 0.0, "cpu_s": 0.0})
+    stages[name] = {"wall_s": was["wall_s"] + t1 - t0, "cpu_s": was["cpu_s"] + c1 - c0}
+if "write" in stages:
+    stages["gcode"] = {"wall_s": gcode_cpu[0], "cpu_s": gcode_cpu[1]}
+    stages["pictures"] = {k: stages["write"][k] - gcode_cpu[i] for i, k in enumerate(("wall_s", "cpu_s"))}
+    del stages["write"]
+stages = {k: {kk: round(vv, 3) for kk, vv in v.items()} for k, v in stages.items()}
+cpu_total = round(sum(v["cpu_s"] for v in stages.values()), 3)
 r = plan.report
+ref = None
+if reference:
+    # The full-resolution settle of the program the plan chose, beside the plan's own
+    # (fast) settle: a callable "module:function" taking the plan and returning the
+    # reference SimResult (or its mean displacement, mm).
+    import importlib
+    mod, fn = reference.split(":")
+    got = getattr(importlib.import_module(mod), fn)(plan)
+    ref = float(getattr(got, "mean_displacement_mm", got))
 ts = r["timing_s"]
 # The fit solves the plan's own layout (the flatten stage then reuses it): it counts.
 to_sim = sum(ts.get(k, 0.0) for k in ("load", "validate", "fit", "mesh", "flatten", "simulate"))
@@ -148,16 +194,22 @@ print(json.dumps({
     "coverage": round(r["toolpath"]["coverage"], 4),
     "gcode_lines": g["lines"], "gcode_bytes": g["bytes"], "moves_per_s": g["moves_per_s"],
     "estimated_print_s": g["estimated_print_s"],
-    "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}))
+    "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    "imports": imports, "stages": stages, "cpu_s": cpu_total, "printable": r.get("printable"),
+    "reference_displacement_mm": None if ref is None else round(ref, 3),
+    "fidelity": r.get("fidelity")}))
 """
 
 SHAPE = r"""
 import numpy as np
 from pipeline.input import shapes
 name, out = sys.argv[1], sys.argv[2]
-hf = {**shapes.REFERENCE, **shapes.SADDLES}[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
+hf = {**shapes.REFERENCE, **shapes.SADDLES, **shapes.TERRAIN}[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
 np.save(out + "/" + name + ".npy", hf.z.astype(np.float32))
-open(out + "/" + name + ".yaml", "w").write("pixel_mm: %r\n" % hf.pixel_mm)
+# The rough terrain's two closed basins are 10.5 and 7.8 mm deep: filled, as a real
+# tile's sidecar fills its own (max_fill_mm), since the sheet cannot form a bowl.
+fill = "max_fill_mm: 11\n" if name in shapes.TERRAIN else ""
+open(out + "/" + name + ".yaml", "w").write("pixel_mm: %r\n%s" % (hf.pixel_mm, fill))
 print(json.dumps({"ok": True}))
 """
 
@@ -280,14 +332,18 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
 
 
 METHOD_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak", "terrain_tile",
-               "hyperbolic_paraboloid", "monkey_saddle")
+                 "hyperbolic_paraboloid", "monkey_saddle", "rough_terrain")
+# The full-resolution settle the methods group sets beside each plan's own, as
+# "module:function" (called with the plan; returns a SimResult or mm); None: no column.
+REFERENCE_SETTLE = None
 
 
-def bench_methods(names=METHOD_MODELS):
+def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline")):
     """Both layout methods, whole plans checked by the same thin-shell simulation: the
-    reference shapes, the two saddles and the real terrain, each once (the quality
-    figures are deterministic). The free method's relief is fitted to the material,
-    even where a sidecar asks for a height; the isoline method plans it as given."""
+    reference shapes, the two saddles, the rough generated terrain and the real terrain,
+    each once (the quality figures are deterministic). The free method's relief is fitted
+    to the material, even where a sidecar asks for a height; the isoline method plans it
+    as given. ``tiles``: the real tiles' names (default all), ``methods``: which to run."""
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         inputs = []
@@ -295,42 +351,52 @@ def bench_methods(names=METHOD_MODELS):
             _child(SHAPE, name, tmp)
             inputs.append((name, Path(tmp) / (name + ".npy")))
         if TERRAIN.is_dir():
-            inputs += [(png.stem, png) for png in sorted(TERRAIN.glob("*.png"))]
+            inputs += [(png.stem, png) for png in sorted(TERRAIN.glob("*.png"))
+                       if tiles is None or png.stem in tiles]
+        args = {"free": ("free", "fit"), "isoline": ("isoline", "shell")}
         for name, path in inputs:
             out[name] = {"methods": {
-                "free": _child(PLAN, str(path), tmp + "/out", "free", "fit"),
-                "isoline": _child(PLAN, str(path), tmp + "/out", "isoline", "shell")}}
+                m: _child(PLAN, str(path), tmp + "/out", *args[m], reference=m == "free")
+                for m in methods}}
         # The time targets name a 175 mm real tile: each tile again at that size, with
         # the default method; and each fitted by lowering its relief only (`fit: relief`,
         # the fit's first lever), beside the default fit that smooths first.
         for name, path in inputs:
-            free = out[name]["methods"]["free"]
+            free = out[name]["methods"].get("free", {})
             if path.suffix == ".png" and "longest_diameter_mm" in free:
                 big = _at_size(path, Path(tmp) / "big", 175.0 / free["longest_diameter_mm"])
                 out[name + " at 175 mm"] = {"methods": {
-                    "free": _child(PLAN, str(big), tmp + "/out", "free", "fit")}}
+                    "free": _child(PLAN, str(big), tmp + "/out", "free", "fit",
+                                   reference=True)}}
+                # As a user drops a tile: its size, no height, so the plan fits it.
+                bare = _at_size(path, Path(tmp) / "bare", 175.0 / free["longest_diameter_mm"],
+                                drop=("height_mm",))
+                out[name + " at 175 mm, no height"] = {"methods": {
+                    "free": _child(PLAN, str(bare), tmp + "/out", "free", reference=True)}}
                 lowered = _with(path, Path(tmp) / "lowered", fit="relief")
                 out[name + " lowered only"] = {"methods": {
                     "free": _child(PLAN, str(lowered), tmp + "/out", "free", "fit")}}
     return out
 
 
-def _at_size(png, folder, factor):
+def _at_size(png, folder, factor, drop=()):
     """A copy of ``png`` and its sidecar in ``folder`` with the sidecar's ``size_mm``
-    times ``factor`` (heights as given): the path of the copy."""
+    times ``factor`` (heights as given, but for the keys ``drop``): the path of the copy."""
     import yaml
     side = yaml.safe_load(png.with_suffix(".yaml").read_text()) or {}
-    return _with(png, folder, size_mm=round(float(side["size_mm"]) * factor, 2))
+    return _with(png, folder, drop=drop, size_mm=round(float(side["size_mm"]) * factor, 2))
 
 
-def _with(png, folder, **changes):
-    """A copy of ``png`` and its sidecar in ``folder`` with ``changes`` to the sidecar:
-    the path of the copy."""
+def _with(png, folder, drop=(), **changes):
+    """A copy of ``png`` and its sidecar in ``folder`` with ``changes`` to the sidecar
+    and the keys ``drop`` left out: the path of the copy."""
     import shutil
     import yaml
     folder.mkdir(parents=True, exist_ok=True)
     side = yaml.safe_load(png.with_suffix(".yaml").read_text()) or {}
     side.update(changes)
+    for key in drop:
+        side.pop(key, None)
     shutil.copy(png, folder / png.name)
     (folder / png.name).with_suffix(".yaml").write_text(yaml.safe_dump(side))
     return folder / png.name
@@ -349,14 +415,18 @@ def bench_terrain():
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["flatten", "plan", "terrain", "fine_map", "layout", "methods"])
-    ap.add_argument("--models", help="comma-separated reference shapes for the plan group")
+    ap.add_argument("--models", help="comma-separated reference shapes for the plan and "
+                    "methods groups")
+    ap.add_argument("--tiles", help="comma-separated real tiles for the methods group "
+                    "(default: every tile; empty: none)")
+    ap.add_argument("--methods", default="free,isoline",
+                    help="layout methods for the methods group (default: free,isoline)")
     ap.add_argument("--no-save", action="store_true",
                     help="print only; keep benchmarks/results and docs/figures.md as they are")
     args = ap.parse_args()
     t0 = time.time()
     plan_kw = {"names": tuple(args.models.split(","))} if args.models else {}
-    result = {"machine": {"cpu_count": os.cpu_count(), "python": sys.version.split()[0],
-                          "single_core": True}, "targets": TARGETS}
+    result = {"machine": figures.conditions(), "targets": TARGETS}
     if args.only in (None, "flatten"):
         result["flatten"] = bench_flatten()
     if args.only in (None, "plan"):
@@ -368,7 +438,10 @@ def main():
     if args.only in (None, "layout"):
         result["layout"] = bench_layout()
     if args.only in (None, "methods"):
-        result["methods"] = bench_methods(**({"names": plan_kw["names"]} if plan_kw else {}))
+        result["methods"] = bench_methods(
+            **({"names": plan_kw["names"]} if plan_kw else {}),
+            tiles=None if args.tiles is None else [t for t in args.tiles.split(",") if t],
+            methods=tuple(args.methods.split(",")))
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
     if not args.no_save:

@@ -13,6 +13,17 @@ import tempfile
 from pathlib import Path
 
 
+def output_names(name, color=False):
+    """Every file a plan of ``NAME.*`` writes, by kind (the writer takes its names from
+    here; it lives beside the writing, with no pipeline import, so that `hostd --help`
+    lists the files without loading the pipeline)."""
+    kinds = ["report.json", "gcode", "flat.ply", "simulated.ply", "stress.png", "preview.png",
+             "toolpath.png", "input.png"]
+    if color:
+        kinds += ["texture.png", "outline.svg"]
+    return {k: "%s.%s" % (name, k) for k in kinds}
+
+
 def mount_point(path):
     """The mount point of the filesystem holding ``path`` (which must exist)."""
     mount = Path(path).resolve()

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hostd import kept
-from hostd.outputs import Staging, atomic_write, json_text
+from hostd.outputs import Staging, atomic_write, json_text, output_names
 from pipeline import plyio
 from pipeline.gcode import writer as gcode
 from pipeline.gcode.link import LINK_SHARE
@@ -25,15 +25,6 @@ from pipeline.plan import plan_file
 from pipeline.problems import BLOCKING
 
 TEXTURE_DPI = 300
-
-
-def output_names(name, color=False):
-    """Every file a plan of ``NAME.*`` writes, by kind (the writer takes its names from here)."""
-    kinds = ["report.json", "gcode", "flat.ply", "simulated.ply", "stress.png", "preview.png",
-             "toolpath.png", "input.png"]
-    if color:
-        kinds += ["texture.png", "outline.svg"]
-    return {k: "%s.%s" % (name, k) for k in kinds}
 
 
 def run(input_path, profile, outdir, progress=None, force_fit=False, method=None, keep=None):

@@ -75,6 +75,17 @@ def test_plan_help_lists_every_output(capsys):
         assert name in text, name
 
 
+def test_help_starts_without_loading_the_pipeline():
+    # `hostd --help` and every command's help are asked often (and by the shell's
+    # completion): the parser lists the outputs without importing the planner.
+    code = ("import sys; from hostd.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in ('pipeline.plan', 'hostd.planner', 'scipy.sparse') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
 def test_a_closed_pipe_ends_the_listing_quietly(tmp_path):
     store = J.JobStore(tmp_path / "state" / "jobs.sqlite")
     for i in range(1500):                         # far more than a pipe buffers

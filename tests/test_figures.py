@@ -53,3 +53,55 @@ def test_only_the_readme_block_is_replaced(tmp_path):
     assert "| dome (free) |" in readme.read_text()
     assert "docs/figures.md" in text
     assert "| starfish |" in (tmp_path / "figures.md").read_text()
+
+
+def _widest(text):
+    return max(line.count("|") - 1 for line in text.splitlines() if line.startswith("|"))
+
+
+FREE = dict(DOME, method="free", fit_scale=1.0, fit_smooth_mm=6.0, fit_removed_mm=0.4,
+            reach_p90=0.3, invalid_area_fraction=0.01, flipped=0, printable=True,
+            upper_traces=1, across_traces=1, ends_inside=0, ring_bridges=3, rim_tails=2,
+            rim_tail_mm=9.0, overlap=0.01, hop_overprint_share=0.02, hop_dry_share=0.01,
+            direction_angle_deg={"p95": 4.0}, link_moves_per_s=250.0,
+            estimated_print_s=5580.0, mean_displacement_of_relief=0.03,
+            reference_displacement_mm=0.08, hold_smooth_mm=8.0, hold_displacement=0.004,
+            arm_tips_mm=[1.0, 2.0], imports={"wall_s": 1.0, "cpu_s": 0.8},
+            stages={"load": {"wall_s": 0.1, "cpu_s": 0.1}, "fit": {"wall_s": 2.0, "cpu_s": 1.5},
+                    "mesh": {"wall_s": 0.3, "cpu_s": 0.2}, "flatten": {"wall_s": 2.0, "cpu_s": 1.8},
+                    "simulate": {"wall_s": 4.0, "cpu_s": 3.0},
+                    "toolpath": {"wall_s": 3.0, "cpu_s": 2.5}, "gcode": {"wall_s": 1, "cpu_s": 0.6},
+                    "pictures": {"wall_s": 1.2, "cpu_s": 0.9}},
+            cpu_s=10.6, fidelity={"mean_mm": 0.61, "p90_mm": 1.4, "relief_reached": 0.93})
+
+
+def test_every_table_answers_one_question_in_at_most_twelve_columns(tmp_path):
+    res = tmp_path / "results"
+    figures.save("methods", {"dome": {"methods": {"free": FREE, "isoline": DOME}}}, COND,
+                 folder=res)
+    text = figures.render(figures.load(res))
+    assert _widest(text) <= 12
+    for title, _, _ in figures.TABLES:
+        assert "### " + title in text
+    # CPU per stage, the pictures apart; the imports count in all stages and in `other`.
+    assert "| dome (free) | 1.5 | 2.0 | 3.0 | 2.5 | 0.6 | 0.9 | 0.9 | 11.4 |" in text
+    # The fast settle beside the full-resolution one, and the distance to the input.
+    assert "0.08" in text and "-0.01 mm (-12 %)" in text
+    assert "| 0.61 | 1.40 | 93.0 % |" in text
+    # A result without those keys leaves their cells blank, not the table.
+    row = next(line for line in text.splitlines() if line.startswith("| dome (isoline) |")
+               and "0.07 mm" in line)
+    assert "| 0.08 |" not in row
+
+
+def test_the_readme_block_has_at_most_eight_columns_with_the_plan_time_and_memory(tmp_path):
+    res = tmp_path / "results"
+    figures.save("methods", {"dome": {"methods": {"free": FREE}}}, COND, folder=res)
+    block = figures.headline(figures.load(res))
+    assert _widest(block) <= 8
+    head = block.splitlines()[0]
+    for column in ("model", "distance to the shape", "printable", "traces", "plan s",
+                   "print time", "peak MB"):
+        assert column in head
+    assert "| dome (free) | 175 | 0.61 mm | yes | 1 + 1 + 1 across | 11.4 | 1 h 33 min | 411 |" \
+        in block

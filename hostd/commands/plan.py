@@ -34,7 +34,7 @@ def add_parser(sub):
 
 
 def _outputs(color):
-    from hostd.planner import output_names
+    from hostd.outputs import output_names
     return list(output_names("NAME", color=color).values())
 
 

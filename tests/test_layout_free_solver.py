@@ -1,0 +1,34 @@
+"""The free layout's solver: the local step without trigonometry gives the projection's
+matrices, and a target laid out again reuses its factored global system."""
+
+import numpy as np
+
+from pipeline.input import shapes
+from pipeline.layout import free
+from pipeline.layout.free import flatten_free, global_system, project, projected
+from pipeline.meshing.grid import build_grid_mesh
+
+LO, HI = 1.0, 1.0 / (1.0 - 0.34)
+
+
+def test_the_local_step_is_the_projection():
+    rng = np.random.default_rng(3)
+    J = rng.normal(scale=0.6, size=(2000, 2, 2)) + np.eye(2)
+    # The parts of norm 0: a similarity, a reflection, nothing, a rotation by a half turn.
+    J[:4] = [[[1.2, 0], [0, 1.2]], [[0.5, 0.3], [0.3, -0.5]], [[0, 0], [0, 0]],
+             [[-1, 0], [0, -1]]]
+    assert np.allclose(projected(J, LO, HI), project(J, LO, HI)[0], atol=1e-12)
+
+
+def test_the_same_target_is_factored_once():
+    free._systems.clear()
+    mesh = build_grid_mesh(shapes.dome(diameter_mm=40.0, height_mm=8.0), 2.0)
+    first = global_system(mesh.vertices, mesh.faces)
+    # Equal contents, not the same array: the relaid layouts pass copies.
+    assert global_system(mesh.vertices.copy(), mesh.faces.copy()) is first
+    higher = mesh.vertices * [1.0, 1.0, 1.5]
+    assert global_system(higher, mesh.faces) is not first
+    flat = flatten_free(mesh, 0.0, 0.34)
+    free._systems.clear()
+    again = flatten_free(mesh, 0.0, 0.34)
+    assert np.array_equal(flat.xy, again.xy) and flat.iterations == again.iterations
