@@ -18,7 +18,7 @@ from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
 from pipeline.problems import FOLD_LIMIT, RELIEF_LOST, fold_area_fraction
-from pipeline.simulation.programmed import simulate_free
+from pipeline.simulation.staged import simulate_free
 
 # The free method's quick looks: a coarser grid and fewer iterations than its plan (a
 # few seconds on a 175 mm tile); the thin shell's displacement changes by less than a

@@ -36,7 +36,7 @@ from pipeline.paths.sheet import Sheet
 from pipeline.paths.stripes import stripe_toolpaths
 from pipeline.simulation.forward import simulate
 from pipeline.simulation import inverted
-from pipeline.simulation.programmed import simulate_free
+from pipeline.simulation.staged import simulate_free
 from pipeline.simulation.resample import onto_grid
 from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import blas
 from scipy.sparse.linalg import splu
 
 from pipeline.mechanics.constraints import (corner_coefficients, face_geometry, hinge_weights,
@@ -366,7 +367,7 @@ def minimize_lbfgs(system, X, iterations, rest_tol, window=10, memory=5, callbac
     """
     Q, E = system.project(X)
     g = system.gradient(Q, X)
-    S, Y = deque(maxlen=memory), deque(maxlen=memory)
+    S, Y, R = deque(maxlen=memory), deque(maxlen=memory), deque(maxlen=memory)
     past = deque(maxlen=window)
     energies = []
     converged = False
@@ -374,11 +375,12 @@ def minimize_lbfgs(system, X, iterations, rest_tol, window=10, memory=5, callbac
     for it in range(1, iterations + 1):
         energies.append(E)
         past.append(X)
-        d = -_two_loop(g, S, Y, system.precondition)
+        d = -_two_loop(g, S, Y, system.precondition, R)
         slope = float(np.vdot(g, d))
         if not slope < 0:
             S.clear()
             Y.clear()
+            R.clear()
             d = -system.precondition(g)
             slope = float(np.vdot(g, d))
         step = 1.0
@@ -393,9 +395,11 @@ def minimize_lbfgs(system, X, iterations, rest_tol, window=10, memory=5, callbac
             break
         gn = system.gradient(Qn, Xn)
         s, y = (Xn - X).ravel(), (gn - g).ravel()
-        if np.dot(s, y) > 1e-12 * np.dot(y, y):
+        sy = float(np.dot(s, y))
+        if sy > 1e-12 * np.dot(y, y):
             S.append(s)
             Y.append(y)
+            R.append(1.0 / sy)
         X, E, g = Xn, En, gn
         if callback is not None:
             callback(it, X.T)
@@ -408,19 +412,25 @@ def minimize_lbfgs(system, X, iterations, rest_tol, window=10, memory=5, callbac
 _BACKTRACKS = 20
 
 
-def _two_loop(g, S, Y, precondition):
-    """L-BFGS direction: the inverse-Hessian estimate applied to ``g`` ((d, n))."""
+def _two_loop(g, S, Y, precondition, R=None):
+    """L-BFGS direction: the inverse-Hessian estimate applied to ``g`` ((d, n)).
+    ``R``: each pair's ``1 / (y . s)``, kept with the pairs (half the dot products)."""
     q = g.ravel().copy()
+    R = [1.0 / np.dot(y, s) for s, y in zip(S, Y)] if R is None else R
     alpha = []
-    for s, y in zip(reversed(S), reversed(Y)):
-        a = np.dot(s, q) / np.dot(y, s)
+    for s, y, rho in zip(reversed(S), reversed(Y), reversed(R)):
+        a = rho * np.dot(s, q)
         alpha.append(a)
-        q -= a * y
-    r = precondition(q.reshape(g.shape)).ravel()
-    for (s, y), a in zip(zip(S, Y), reversed(alpha)):
-        b = np.dot(y, r) / np.dot(y, s)
-        r += (a - b) * s
+        _axpy(y, q, a=-a)
+    r = np.ascontiguousarray(precondition(q.reshape(g.shape)), dtype=float).ravel()
+    for s, y, rho, a in zip(S, Y, R, reversed(alpha)):
+        _axpy(s, r, a=a - rho * np.dot(y, r))
     return r.reshape(g.shape)
+
+
+def _axpy(x, y, a):
+    """``y += a * x`` in place, without the temporary ``a * x``."""
+    blas.daxpy(x, y, a=a)
 
 
 def _at_rest(past, X, rest_tol):

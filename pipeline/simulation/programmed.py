@@ -35,9 +35,13 @@ ACROSS_GAIN = 0.2
 # (the starfish: 0.106 % and its arm tips 2.1-2.3 mm after one, 0.100 % and 2.0-2.1 mm after
 # two, the same after three).
 RELAY_PASSES = 2
+# Local/global iterations of each relaid pass started from a layout relaid on a coarser
+# sheet and carried (the 175 mm dome: carried, it lies 0.03 mm from the layout 60 cold
+# iterations solve, against 0.47 mm for the first layout).
+WARM_ITERATIONS = 10
 
 
-def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
+def simulate_free(hf, mesh, flat, profile, twist=True, across=True, tally=None):
     """Simulate the sheet the free layout ``flat`` of ``mesh`` (the target, from ``hf``)
     prints with ``profile``: settled from (almost) flat with the bilayer program; from
     there, side by side (:func:`_tried`), with ``twist`` (and the profile's
@@ -46,41 +50,13 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
     two layers across the paths (:mod:`pipeline.layout.laminate`, its halves along them
     turned apart too), kept where it rests :data:`ACROSS_GAIN` closer. Returns
     (:class:`pipeline.layout.curvature.CurvatureProgram`, with ``twist`` and ``across``
-    the comparisons or None, the simulation result)."""
-    lim = profile.shrink_limits
-    # The printed sheet shrinks only within the material's range (the G-code clamps the
-    # thickness the same way), so the simulation shrinks by the clamped sigma.
-    laid = np.clip(flat.sigma, lim.s_min, lim.s_max)
-    cp = profile.curvature
-
-    def thickness(s):
-        return thickness_for(s, profile.shrink_curve, profile.layers,
-                             profile.thickness_mm.min, profile.thickness_mm.max)
-    # One read of the target serves the first layout and every relaid one.
-    derivs = curvature.surface_derivatives(hf, curvature.PROGRAM_SMOOTH_MM)
-    K = curvature.target_tensor(hf, mesh, flat, laid, derivs=derivs)
-    # Where the layout leaves no shrink to bend with, a little is added along d.
-    sigma = curvature.room_for(K, flat.direction, laid, thickness(laid), lim.s_min,
-                               lim.s_max, c=cp.bilayer_c, added_max=cp.max_added_shrink)
-    thick = thickness(sigma)
-
-    def programmed(turn_max_deg):
-        # Curvature through the layers: the lower layers shrink more where the target
-        # rises, so bending pulls toward the target instead of toward flat; the two
-        # layer groups turn apart where it twists.
-        return _program_on(mesh, flat, profile, thickness, K, sigma, turn_max_deg)
-
-    def settle(prog, **kw):
-        A, B = prog.group_tensors(flat.direction, sigma)
-        return simulate_shell(mesh.vertices, mesh.faces, flat.xy,
-                              tensor_rest(flat.xy, mesh.faces, (A + B) / 2), thick,
-                              theta_rest=prog.theta_rest, pop=BATH_BUMP, **kw)
-
+    the comparisons or None, the simulation result). ``tally``: a list that gets the
+    iterations of every settle."""
+    make = Programs(hf, mesh, flat, profile, tally)
+    programmed, settle, cp = make.programmed, make.settle, make.cp
     program = bilayer = programmed(0.0)
     sim = settle(program)
-    # Crossed groups need an even layer count: a middle layer printed with either group
-    # would shear the sheet's mean shrink by twist / (2 * layers).
-    turn = cp.turn_max_deg if profile.layers % 2 == 0 else 0.0
+    turn = make.turn
     # Each way on is probed from the bilayer's rest, side by side, and only the one
     # chosen settles on: the twist tried first and settled on its own, then dropped for
     # the layers across (which turn their halves apart too), cost the Vancouver tile at
@@ -94,9 +70,8 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
         # On the layout solved again for the stack's shrink, and on the first one (relaid,
         # the saddles, the starfish and the elongated peak rest 40-80 % closer; three
         # islands and the small terrains 5-35 % further).
-        stacks = [_across_stack(derivs, mesh, flat, K, sigma, profile, thickness,
-                                turn if twist else 0.0, bilayer, relay) for relay in (True, False)]
-        candidates += [(stack, _settle_stack(mesh, stack, metric), ACROSS_GAIN)
+        stacks = [make.stack(relay, twist, bilayer) for relay in (True, False)]
+        candidates += [(stack, make.counted(_settle_stack(mesh, stack, metric)), ACROSS_GAIN)
                        for stack, metric in stacks]
     if not candidates:
         return program, sim
@@ -110,6 +85,94 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True):
     if stacks:
         program.across = _comparison_across(tried, sim, first, stacks[0][0].across["relaid"])
     return program, kept_sim
+
+
+class Programs:
+    """The programs :func:`simulate_free` chooses among for the layout ``flat`` of
+    ``mesh``, made one at a time: the target's curvature read once (``K``), the shrink
+    with room to bend (``sigma``) and the sheet's thickness (``thick``) shared by all."""
+
+    def __init__(self, hf, mesh, flat, profile, tally=None):
+        self.mesh, self.flat, self.profile = mesh, flat, profile
+        self.tally = [] if tally is None else tally
+        lim = profile.shrink_limits
+        self.cp = cp = profile.curvature
+        # The printed sheet shrinks only within the material's range (the G-code clamps
+        # the thickness the same way), so the simulation shrinks by the clamped sigma.
+        laid = np.clip(flat.sigma, lim.s_min, lim.s_max)
+        # One read of the target serves the first layout and every relaid one.
+        self.derivs = curvature.surface_derivatives(hf, curvature.PROGRAM_SMOOTH_MM)
+        self.K = curvature.target_tensor(hf, mesh, flat, laid, derivs=self.derivs)
+        # Where the layout leaves no shrink to bend with, a little is added along d.
+        self.sigma = curvature.room_for(self.K, flat.direction, laid, self.thickness(laid),
+                                        lim.s_min, lim.s_max, c=cp.bilayer_c,
+                                        added_max=cp.max_added_shrink)
+        self.thick = self.thickness(self.sigma)
+        # Crossed groups need an even layer count: a middle layer printed with either
+        # group would shear the sheet's mean shrink by twist / (2 * layers).
+        self.turn = cp.turn_max_deg if profile.layers % 2 == 0 else 0.0
+
+    def thickness(self, s):
+        p = self.profile
+        return thickness_for(s, p.shrink_curve, p.layers, p.thickness_mm.min,
+                             p.thickness_mm.max)
+
+    def programmed(self, turn_max_deg):
+        """The bilayer along ``d`` (its groups turned apart up to ``turn_max_deg``): the
+        lower layers shrink more where the target rises, so bending pulls toward the
+        target instead of toward flat."""
+        return _program_on(self.mesh, self.flat, self.profile, self.thickness, self.K,
+                           self.sigma, turn_max_deg)
+
+    def settle(self, prog, **kw):
+        """``prog`` (along ``d`` on the first layout) settled: SimResult."""
+        A, B = prog.group_tensors(self.flat.direction, self.sigma)
+        mesh, xy = self.mesh, self.flat.xy
+        sim = simulate_shell(mesh.vertices, mesh.faces, xy,
+                             tensor_rest(xy, mesh.faces, (A + B) / 2), self.thick,
+                             theta_rest=prog.theta_rest, pop=BATH_BUMP, **kw)
+        self.tally.append(sim.iterations)
+        return sim
+
+    def counted(self, settle):
+        """``settle`` with its iterations added to :attr:`tally`."""
+        def counted(**kw):
+            sim = settle(**kw)
+            self.tally.append(sim.iterations)
+            return sim
+        return counted
+
+    def stack(self, relay, twist, bilayer, start=None):
+        """The stack with two layers across (:func:`_across_stack`): (program, metric)."""
+        return _across_stack(self.derivs, self.mesh, self.flat, self.K, self.sigma,
+                             self.profile, self.thickness, self.turn if twist else 0.0,
+                             bilayer, relay, start)
+
+    def chosen(self, which, twist=True, start=None):
+        """The program ``which`` (:data:`CHOICES`) and ``settle(**kw)`` of its sheet;
+        ``start``: where its relaid layout is looked for (:func:`_across_stack`)."""
+        bilayer = self.programmed(0.0)
+        if which == "bilayer":
+            return bilayer, lambda **kw: self.settle(bilayer, **kw)
+        if which == "twist":
+            crossed = self.programmed(self.turn)
+            return crossed, lambda **kw: self.settle(crossed, **kw)
+        stack, metric = self.stack(which == "across_relaid", twist, bilayer, start)
+        return stack, self.counted(_settle_stack(self.mesh, stack, metric))
+
+
+# What :func:`simulate_free` can settle on: the bilayer, its groups crossed by the twist,
+# two layers across on the relaid layout, or on the first.
+CHOICES = ("bilayer", "twist", "across_relaid", "across_first")
+
+
+def choice_of(program):
+    """Which of :data:`CHOICES` ``program`` (from :func:`simulate_free`) is."""
+    if program.across is not None and program.across["kept"]:
+        return "across_relaid" if program.across["chosen"] == 0 else "across_first"
+    if program.twist is not None and program.twist["kept"]:
+        return "twist"
+    return "bilayer"
 
 
 def _comparison_twist(tried, sim, turn, crossed):
@@ -152,7 +215,7 @@ def _settle_stack(mesh, stack, metric):
 
 
 def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
-                  relay=True):
+                  relay=True, start=None):
     """The program with two layers across ``d`` (:mod:`pipeline.layout.laminate`), on
     the layout solved again for the shrink that stack prints (:func:`_relaid_for`,
     :data:`RELAY_PASSES` times), the stack made again on each. Printed on the first
@@ -161,7 +224,9 @@ def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilaye
     instead of 0.39 %, the hyperbolic paraboloid 0.06 instead of 0.35 % (each settled
     from flat; the smoothed coast tile 0.54 against 0.48 %). Without ``relay`` the stack
     is made on the first layout, its layers along ``d`` those of ``bilayer`` (the program
-    already made there).
+    already made there). ``start``: (n, 2) mm, where the relaid layout is looked for
+    (:func:`pipeline.layout.compensate.relaid`): the layout relaid so on a coarser sheet,
+    carried; each pass then takes :data:`WARM_ITERATIONS`.
     ``derivs``: the target's :func:`pipeline.layout.curvature.surface_derivatives`.
     Returns (program with ``layout`` and ``across = {"relaid": ...}``, its mean shrink
     tensor (m, 2, 2))."""
@@ -173,10 +238,10 @@ def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilaye
     laid, info = flat, None
     for _ in range(RELAY_PASSES if relay else 0):
         d = np.asarray(laid.direction, dtype=float)
-        new, info = _relaid_for(stack_on(K, d, sigma).metric(d), laid, mesh, lim)
+        new, info = _relaid_for(stack_on(K, d, sigma).metric(d), laid, mesh, lim, start)
         if new is laid:
             break
-        laid = new
+        laid, start = new, None if start is None else new.xy
         s_laid = np.clip(laid.sigma, lim.s_min, lim.s_max)
         K = curvature.target_tensor(None, mesh, laid, s_laid, derivs=derivs)
         sigma = curvature.room_for(K, laid.direction, s_laid, thickness(s_laid), lim.s_min,
@@ -189,7 +254,7 @@ def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilaye
     return stack, lam.metric(laid.direction)
 
 
-def _relaid_for(metric, laid, mesh, lim):
+def _relaid_for(metric, laid, mesh, lim, start=None):
     """The layout ``laid`` solved again for the stack's mean shrink ``metric`` ((m, 2, 2)):
     held across ``d``, along ``d`` at least what the stack shrinks there (the layout's
     and the room; the starfish rests at 0.10 % so, at 0.15 % with only the room held).
@@ -203,7 +268,9 @@ def _relaid_for(metric, laid, mesh, lim):
     e = quarter_turn(d)
     xy, d2, s2, info = relaid(mesh.vertices, mesh.faces, laid.xy, d,
                               np.einsum("mi,mij,mj->m", e, metric, e),
-                              np.einsum("mi,mij,mj->m", d, metric, d), lim.s_min, lim.s_max)
+                              np.einsum("mi,mij,mj->m", d, metric, d), lim.s_min, lim.s_max,
+                              **({} if start is None else
+                                 {"start": start, "iterations": WARM_ITERATIONS}))
     info["flipped"] = int(np.count_nonzero(signed_areas_2d(xy, mesh.faces) <= 0))
     info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
     if info["flipped"]:

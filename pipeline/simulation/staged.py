@@ -1,0 +1,180 @@
+"""The free layout's sheet checked once, coarse to fine.
+
+:func:`pipeline.simulation.programmed.simulate_free` chooses the sheet's program by
+trial settles: the bilayer from the bath, then the twist and two stacks with layers
+across probed from its rest, and the one kept settled on. On a real 175 mm tile those
+are five settles of the full mesh (15 000 vertices), most of a plan's time. The shell
+is mesh-converged, so a sheet of 2.5 mm triangles rests where the 1 mm one does (the
+Vancouver tile at 175 mm: 1.016 mm from the target against 0.985 mm, the same program
+chosen): the trials run there, and only the program chosen is made on the full mesh and
+settled once, from the coarse sheet's rest carried onto it (the Vancouver tile: 76
+iterations instead of 583).
+
+:func:`reference_settle` settles a program chosen so the way the trials do, on the full
+mesh from the bath; the benchmark compares the two.
+"""
+
+import dataclasses
+import time
+
+import numpy as np
+import shapely
+
+from pipeline.errors import MeshingError
+from pipeline.meshing.grid import build_grid_mesh
+from pipeline.simulation import programmed
+
+# Triangle size of the sheet the trials settle on: 2.5 mm rests within 3 % of the 1 mm
+# sheet on the Vancouver tile at 175 mm (2 mm: 2 %, 3 mm: 1 %, each choosing the same
+# program) at a sixth of its vertices.
+COARSE_MM = 2.5
+# The full mesh starts from the coarse sheet's rest, which has crept along the soft modes
+# already: it only relaxes what the coarse triangles could not bend, and is taken to be at
+# rest when it moves this much less than a sheet settling from the bath must (times its
+# diameter, RMS over ten iterations). The Vancouver tile at 175 mm: 0.990 mm from the
+# target after 20 iterations, 0.982 mm at the bath's rest tolerance after 76.
+FINE_REST_TOL = 1e-4
+# The trials run on the plan's own mesh where it is not this much finer than the coarse
+# sheet: a sheet barely coarser would save little and carry the answer for nothing.
+FINER = 1.8
+
+
+def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=COARSE_MM,
+                  reference=False):
+    """As :func:`pipeline.simulation.programmed.simulate_free`, the program chosen on a
+    sheet of ``coarse_mm`` triangles (:func:`coarse_sheet`) and only it made on ``mesh``
+    and settled there once, from the coarse sheet's rest carried onto it. Where ``mesh``
+    is not :data:`FINER` times finer (or ``coarse_mm`` is None) the trials run on it.
+    With ``reference`` the program chosen settles on ``mesh`` from the bath instead
+    (:func:`reference_settle`), for comparison.
+
+    Returns (CurvatureProgram with the coarse sheet's ``twist`` and ``across``
+    comparisons, SimResult of ``mesh``: ``coarse_iterations`` those of the coarse sheet's
+    settles, ``timing_s`` {coarse, full, total} and the CPU seconds of the first two,
+    ``coarse_cpu`` and ``full_cpu``)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    coarse = None
+    if coarse_mm is not None and coarse_mm >= FINER * spacing_mm(mesh):
+        try:
+            coarse = coarse_sheet(hf, mesh, flat, coarse_mm)
+        except MeshingError:
+            coarse = None       # a footprint too narrow for the coarse grid
+    if coarse is None:
+        return programmed.simulate_free(hf, mesh, flat, profile, twist=twist, across=across)
+    cmesh, cflat = coarse
+    tally = []
+    cprog, csim = programmed.simulate_free(hf, cmesh, cflat, profile, twist=twist,
+                                           across=across, tally=tally)
+    t1, c1 = time.perf_counter(), time.process_time()
+    which = programmed.choice_of(cprog)
+    if reference:
+        prog, settle = _chosen(hf, mesh, flat, profile, which, twist)
+        sim = reference_settle(hf, mesh, flat, profile, which, twist, program=(prog, settle))
+    else:
+        start = None
+        if which == "across_relaid" and cprog.layout is not None:
+            # The coarse sheet's relaid layout, as its move from the first one.
+            start = flat.xy + _interpolated(_xy(cmesh), cmesh.faces, cprog.layout.xy - cflat.xy,
+                                            _xy(mesh))
+        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, start)
+        sim = settle(start=carried(cmesh, csim.vertices, mesh.vertices),
+                     rest_tol=FINE_REST_TOL)
+    prog.twist, prog.across = cprog.twist, _across_report(cprog.across, prog)
+    t2, c2 = time.perf_counter(), time.process_time()
+    sim = dataclasses.replace(sim, coarse_iterations=sum(tally),
+                              timing_s={"coarse": t1 - t0, "full": t2 - t1, "total": t2 - t0,
+                                        "coarse_cpu": c1 - c0, "full_cpu": c2 - c1})
+    return prog, sim
+
+
+def reference_settle(hf, mesh, flat, profile, which, twist=True, program=None):
+    """The program ``which`` (:data:`pipeline.simulation.programmed.CHOICES`) settled on
+    ``mesh`` the way the trials settle the one they keep: the bilayer from the bath,
+    then ``which`` from the bilayer's rest (no probe cap). ``program``: (program,
+    ``settle``) of ``which`` already made on ``mesh``. Returns SimResult."""
+    make = programmed.Programs(hf, mesh, flat, profile)
+    sim = make.settle(make.programmed(0.0))
+    if which == "bilayer":
+        return sim
+    _, settle = program or make.chosen(which, twist)
+    return programmed._continued(settle(start=sim.vertices), sim)
+
+
+def _chosen(hf, mesh, flat, profile, which, twist, start=None):
+    return programmed.Programs(hf, mesh, flat, profile).chosen(which, twist, start)
+
+
+def _xy(mesh):
+    return np.asarray(mesh.vertices, dtype=float)[:, :2]
+
+
+def _across_report(coarse_across, prog):
+    """The coarse sheet's ``across`` comparison, with the relaid layout's solve the one
+    on the plan's mesh where that layout is the one printed."""
+    if coarse_across is None:
+        return None
+    relaid = (prog.across or {}).get("relaid")
+    if relaid is None:
+        return dict(coarse_across)
+    return dict(coarse_across, relaid=dict(relaid, chosen=coarse_across["chosen"] == 0))
+
+
+def spacing_mm(mesh):
+    """Median edge length of ``mesh`` over the target's footprint (x, y): mm."""
+    V = np.asarray(mesh.vertices, dtype=float)[:, :2]
+    F = np.asarray(mesh.faces)
+    return float(np.median(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1)))
+
+
+def coarse_sheet(hf, mesh, flat, coarse_mm=COARSE_MM):
+    """The layout ``flat`` of ``mesh`` carried onto a grid of ``hf`` every ``coarse_mm``:
+    each coarse vertex where the layout's map puts its point of the target, each coarse
+    triangle the print direction and shrink of the fine one under its centre.
+    Returns (coarse Mesh, FreeLayout)."""
+    cmesh = build_grid_mesh(hf, coarse_mm)
+    V = np.asarray(mesh.vertices, dtype=float)[:, :2]
+    F = np.asarray(mesh.faces, dtype=np.int64)
+    CV = np.asarray(cmesh.vertices, dtype=float)[:, :2]
+    CF = np.asarray(cmesh.faces, dtype=np.int64)
+    xy = _interpolated(V, F, np.asarray(flat.xy, dtype=float), CV)
+    under, _ = locate(V, F, CV[CF].mean(axis=1))
+    d = np.asarray(flat.direction, dtype=float)[under]
+    d /= np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+    return cmesh, dataclasses.replace(flat, xy=xy, direction=d,
+                                      sigma=np.asarray(flat.sigma)[under])
+
+
+def carried(cmesh, shape, vertices):
+    """The coarse sheet's 3-D ``shape`` ((k, 3) mm, at ``cmesh``'s vertices) carried to
+    the points of the target ``vertices`` ((n, 3) mm) by where they lie over the coarse
+    target: (n, 3) mm."""
+    return _interpolated(np.asarray(cmesh.vertices, dtype=float)[:, :2],
+                         np.asarray(cmesh.faces, dtype=np.int64),
+                         np.asarray(shape, dtype=float),
+                         np.asarray(vertices, dtype=float)[:, :2])
+
+
+def _interpolated(V2, faces, values, points):
+    """``values`` ((n, c), at ``V2``) linearly inside ``faces`` at ``points`` ((k, 2)),
+    beyond the mesh's edge by the nearest triangle's plane: (k, c)."""
+    which, bary = locate(V2, faces, points)
+    return np.einsum("kj,kjc->kc", bary, values[faces[which]])
+
+
+def locate(V2, faces, points):
+    """The triangle of ``faces`` (over ``V2``, (n, 2) mm) holding each of ``points``
+    ((k, 2) mm), or the nearest one, and the points' barycentric coordinates in it:
+    ((k,) int, (k, 3))."""
+    T = V2[faces]
+    tree = shapely.STRtree(shapely.polygons(np.concatenate([T, T[:, :1]], axis=1)))
+    pts = shapely.points(points)
+    which = np.full(len(points), -1, dtype=np.int64)
+    hit = tree.query(pts, predicate="intersects")
+    which[hit[0]] = hit[1]
+    lost = np.flatnonzero(which < 0)
+    if len(lost):
+        near = tree.query_nearest(pts[lost], return_distance=False)
+        which[lost[near[0]]] = near[1]
+    a, b, c = (T[which, k] for k in range(3))
+    uv = np.linalg.solve(np.stack([b - a, c - a], axis=2), (points - a)[:, :, None])[:, :, 0]
+    return which, np.c_[1.0 - uv.sum(axis=1), uv]
