@@ -169,7 +169,15 @@ def preview_title(plan):
 
 
 def _input_note(plan):
-    """What the fit did to the input before it was meshed: '' or ', ...'."""
+    """What the fit did to the input before it was meshed, and which side of a mesh was
+    taken as up: '' or ', ...'."""
+    up = getattr(plan.input_hf, "up", None) if getattr(plan, "input_hf", None) else None
+    note = (", mesh read with %s up (%s)" % (up["up"], "sidecar" if up["chosen"] == "sidecar"
+                                              else "its height-field side") if up else "")
+    return note + _fit_input_note(plan)
+
+
+def _fit_input_note(plan):
     fit = getattr(plan, "fit", None)
     if fit is not None and fit.applied_smooth_mm is not None:
         return ", smoothed %g mm by the fit" % fit.applied_smooth_mm

@@ -452,6 +452,7 @@ def _report(path, profile, p, vrep, srep, timing):
             "filled_volume_mm3": float(vrep["filled_volume_mm3"]),
             "deepest_fill_mm": float(vrep.get("deepest_fill_mm", 0.0)),
             "has_color": hf.color is not None,
+            **({"up": p.input_hf.up} if p.input_hf.up else {}),
             "simplified": {"peaks_before": int(srep.get("peaks_before", 0)),
                            "peaks_after": int(srep.get("peaks_after", 0)),
                            "removed_peaks": int(srep.get("removed_count",

@@ -146,9 +146,15 @@ def test_color_png_resampled(tmp_path):
     assert _code(e) == "heightfield.color_mismatch"
 
 
+def _top_half(mesh):
+    """The upper half of a closed mesh, open at z = 0: a surface, not a solid (a closed
+    solid is refused, :mod:`tests.test_mesh_up`)."""
+    return mesh.slice_plane([0, 0, 0], [0, 0, 1])
+
+
 @pytest.mark.parametrize("ext", ["stl", "ply", "obj", "glb"])
 def test_mesh_top_surface(tmp_path, ext):
-    sphere = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
+    sphere = _top_half(trimesh.creation.icosphere(subdivisions=4, radius=20.0))
     path = tmp_path / ("ball." + ext)
     sphere.export(path)
     (tmp_path / "ball.yaml").write_text("pixel_mm: 0.5\n")
@@ -184,7 +190,7 @@ def test_mesh_solid_block_keeps_top_only(tmp_path):
 
 
 def test_mesh_vertex_colours(tmp_path):
-    m = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    m = _top_half(trimesh.creation.icosphere(subdivisions=3, radius=10.0))
     colors = np.zeros((len(m.vertices), 4), np.uint8)
     colors[:, 3] = 255
     colors[m.vertices[:, 0] > 0, 0] = 255  # east half red
@@ -200,7 +206,7 @@ def test_mesh_vertex_colours(tmp_path):
 
 
 def test_mesh_size_mm_scales_uniformly(tmp_path):
-    trimesh.creation.icosphere(subdivisions=3, radius=1.0).export(tmp_path / "u.stl")
+    _top_half(trimesh.creation.icosphere(subdivisions=3, radius=1.0)).export(tmp_path / "u.stl")
     (tmp_path / "u.yaml").write_text("size_mm: 40\n")
     hf, _ = H.load(tmp_path / "u.stl")
     assert np.nanmax(hf.z) == pytest.approx(20.0, abs=0.3)
