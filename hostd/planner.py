@@ -21,6 +21,7 @@ from pipeline.pictures import figure, hfimage, render, texture
 from pipeline.errors import PipelineError, PlanError
 from pipeline.plan import plan_file
 from pipeline.problems import BLOCKING
+from pipeline.simulation import fidelity
 
 TEXTURE_DPI = 300
 
@@ -123,9 +124,12 @@ def write_outputs(st, plan):
         st.write_image(out["stress.png"], render.stress_image(
             flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
             title="%s: flat layout, shrink per printing edge" % name))
+    # The file as given beside the sheet, the target planned (smoothed, lowered) third.
+    given, sheet, off = fidelity.against_given(sim.vertices, target, plan.validated)
     st.write_image(out["preview.png"], render.preview_image(
-        target, sim_faces, sim.vertices, disp, title=preview_title(plan),
-        inverted_faces=plan.inverted["faces"] if plan.inverted else None))
+        target, sim_faces, sheet, off, title=preview_title(plan),
+        inverted_faces=plan.inverted["faces"] if plan.inverted else None,
+        given_vertices=given, target_label=_target_label(plan)))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(out["input.png"], hfimage.heightfield_image(
@@ -184,6 +188,12 @@ def _fit_input_note(plan):
     if fit is not None and fit.applied_scale < 1.0:
         return ", relief lowered to %.0f %% by the fit" % (100 * fit.applied_scale)
     return ""
+
+
+def _target_label(plan):
+    """The preview's third view: the target planned, and what the fit did to the file."""
+    note = _fit_input_note(plan)
+    return "planned target" + (" (%s)" % note[2:] if note else "")
 
 
 def _fit_note(plan):

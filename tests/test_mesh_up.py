@@ -10,9 +10,10 @@ from pipeline.input import meshread
 from pipeline.input.validate import validate
 
 
-def hemisphere(radius, rings=24, segments=64):
-    """An open hemisphere shell, apex on +Z, normals outward: (vertices, faces)."""
-    theta = np.linspace(0, np.pi / 2, rings + 1)[1:]      # from the apex down to the rim
+def hemisphere(radius, rings=24, segments=64, rim_deg=90.0):
+    """An open hemisphere shell (a cap down to ``rim_deg`` from the apex), apex on +Z,
+    normals outward: (vertices, faces)."""
+    theta = np.linspace(0, np.radians(rim_deg), rings + 1)[1:]   # from the apex to the rim
     phi = np.linspace(0, 2 * np.pi, segments, endpoint=False)
     t, p = np.meshgrid(theta, phi, indexing="ij")
     ring = np.column_stack([(np.sin(t) * np.cos(p)).ravel(), (np.sin(t) * np.sin(p)).ravel(),
@@ -146,3 +147,21 @@ def test_terrain_block_with_base_and_walls_is_up(tmp_path):
     (tmp_path / "block.yaml").write_text("pixel_mm: 1.0\n")
     hf, _ = H.load(tmp_path / "block.stl")
     assert hf.up["up"] == "+z" and hf.up["facing_away"] == 0.0
+
+
+def test_a_y_up_cap_plans_upright_and_says_so(tmp_path):
+    from hostd import planner
+    from pipeline.profiles.profile import load_profile
+    verts, faces = hemisphere(40.0, rings=12, segments=48, rim_deg=35.0)   # 46 mm, 7 mm high
+    _write_obj(tmp_path / "cap.obj", _y_up(verts), faces)
+    (tmp_path / "cap.yaml").write_text("pixel_mm: 1.0\n")
+    plan = planner.run(tmp_path / "cap.obj", load_profile("generic-0.5mm"), tmp_path / "out")
+    hf = plan.report["heightfield"]
+    assert hf["up"]["up"] == "+y" and hf["max_height_mm"] == pytest.approx(
+        40 * (1 - np.cos(np.radians(35))), rel=0.03)
+    # Measured against the file as dropped, next to the plan's own figure.
+    fid = plan.report["fidelity"]
+    assert fid["relief_given_mm"] == pytest.approx(hf["max_height_mm"], rel=0.02)
+    assert 0 < fid["mean_mm"] < 0.05 * hf["longest_diameter_mm"]
+    assert fid["right_way_strong"] > 0.5
+    assert "mesh read with +y up" in planner._input_note(plan)

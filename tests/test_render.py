@@ -201,6 +201,24 @@ def test_preview_simulated_hotspot_lands_where_the_displacement_is(dome_mesh):
     assert dark_red(east) > 10 * max(dark_red(west), 1)
 
 
+def test_preview_shows_the_file_as_given_first_the_sheet_then_the_target(dome_mesh):
+    v, f = dome_mesh
+    given = v.copy()
+    given[:, 2] *= 1.5                     # the file: a dome half again as high
+    img = render.preview_image(v, f, v, np.linalg.norm(v - given, axis=1), panel_px=(400, 300),
+                               contour_mm=None, given_vertices=given,
+                               target_label="planned target (smoothed 6 mm)")
+    a = np.asarray(img).astype(int)
+    assert img.width >= 1200
+    warm = lambda p: ((p[..., 0] - p[..., 2]) > 60).sum()
+    ink = lambda p: (p.max(axis=-1) < 250).sum()
+    first, second, third = a[:, 20:400], a[:, 420:800], a[:, 820:1200]
+    # Neutral file and target, the sheet coloured by its distance from the file.
+    assert warm(first) < 50 and warm(third) < 50 and warm(second) > 5000
+    # The file stands higher than the target in the same view: more of its panel drawn.
+    assert ink(first) > 1.1 * ink(third)
+
+
 def test_toolpath_image_marks_starts_travel_and_invalid_segments():
     traces = [np.array([[0.0, 0.0], [60.0, 0.0], [60.0, 1.0], [0.0, 1.0]]),
               np.array([[0.0, 20.0], [60.0, 20.0]])]
