@@ -93,6 +93,18 @@ def test_grey_rgb_accepted_colour_rgb_refused(tmp_path):
     assert _code(e) == "heightfield.not_2d"
 
 
+def test_an_image_without_a_height_gets_a_relief_in_proportion_to_its_size(tmp_path):
+    g = np.round(_bump() * 255).astype(np.uint8)            # 40 x 60 samples
+    Image.fromarray(g).save(tmp_path / "t.png")
+    (tmp_path / "t.yaml").write_text("size_mm: 60\n")
+    hf, _ = H.load(tmp_path / "t.png")
+    # The default 30 mm belongs to the default 150 mm: at 60 mm, 12 mm (same slopes).
+    assert np.nanmax(hf.z) == pytest.approx(12.0)
+    (tmp_path / "t.yaml").write_text("size_mm: 60\nheight_mm: 25\n")
+    hf, _ = H.load(tmp_path / "t.png")
+    assert np.nanmax(hf.z) == pytest.approx(25.0)
+
+
 def test_tiff16_and_float_tiff(tmp_path):
     a = _bump()
     Image.fromarray(np.round(a * 65535).astype(np.uint16)).save(tmp_path / "a.tif")

@@ -81,7 +81,9 @@ def load(path, profile=None, max_pixels=None):
 
     color, up = None, None
     if ext in IMAGE_EXT:
-        values, unit_height = _read_image(path, max_pixels), defaults.height_mm
+        values = _read_image(path, max_pixels)
+        unit_height = image_relief_mm(_pixel_mm(values, sidecar, defaults.size_mm), values,
+                                      defaults)
     elif ext in ARRAY_EXT:
         values, unit_height = _read_array(path, ext, max_pixels), None
     else:
@@ -326,6 +328,16 @@ def _to_mm(v, path, sidecar, unit_height_mm):
     elif unit_height_mm is not None:
         z *= unit_height_mm / (hi - lo)
     return z
+
+
+def image_relief_mm(pixel_mm, values, defaults):
+    """The relief of an image without a height: the profile's ``defaults.height_mm`` at
+    ``defaults.size_mm``, in proportion at other sizes. Slopes and curvatures are what
+    decide whether a sheet forms a shape, and they stay the same when the relief scales
+    with the size: a 60 mm tile given the 30 mm of a 150 mm one is five times as steep."""
+    h, w = _footprint_span(values)
+    size = pixel_mm * max(h - 1, w - 1, 1)
+    return defaults.height_mm * size / defaults.size_mm
 
 
 def _pixel_mm(z, sidecar, default_size_mm):
