@@ -2,7 +2,9 @@
 (:mod:`pipeline.layout.fit` searches for them), and the warnings that say so.
 
 ``fitted`` makes the relief form when nobody asked for a height; ``refuse_too_high``
-refuses a height asked for that does not form, with the sidecar line that would.
+refuses a height asked for that does not form, with the sidecar line that would;
+``take_hold`` plans again, smoothed as much as the sheet needs to hold its shape, a
+plan whose fit laid out but whose sheet did not hold it.
 """
 
 import time
@@ -124,3 +126,42 @@ def _resmooth(result, opts):
     """The input as validated, smoothed ``smooth_mm`` instead of the sidecar's amount."""
     return lambda smooth_mm: simplify(result.validated, opts["min_prominence_mm"],
                                       smooth_mm)[0]
+
+
+def take_hold(result, sidecar, plan_again):
+    """Where nobody asked for a height and the fit may smooth (``fit: auto``), a plan
+    whose sheet ended too far from the shape is planned again with the smoothing at which
+    the report's ``hold`` found that it holds, and says so: the fit lays the relief out
+    and keeps it within reach on a quick mesh, the hold simulates the sheet, so it can
+    ask for more. Returns the plan made again (printable or not, with the first plan's
+    ``hold`` and figures in ``fit.held``), or None where nothing was taken.
+
+    plan_again : callable(smooth_mm) -> Plan."""
+    hold = result.report.get("hold") or {}
+    mode = (sidecar.fit if sidecar is not None else None) or "auto"
+    if (hold.get("smooth_mm") is None or mode != "auto" or height_asked(sidecar)
+            or result.blocked or result.profile.flatten.method != "free"):
+        return None
+    first = result.report
+    held = plan_again(hold["smooth_mm"])
+    was = first["fit"]["applied_smooth_mm"] or first["fit"]["smooth_mm"]
+    got = held.report["simulation"]["mean_displacement_fraction"]
+    held.problems.insert(0, {
+        "code": "fit.held",
+        "message": "smoothed %g mm instead of %g mm: at %g mm the simulated sheet ended %.1f %% "
+                   "of its diameter from the shape (the profile allows %.1f %%), smoothed it "
+                   "ends %.1f %%; narrower features do not form in this sheet" % (
+                       hold["smooth_mm"], was, was,
+                       100 * first["simulation"]["mean_displacement_fraction"],
+                       100 * hold["limit"], 100 * got),
+        "fix": "nothing to do; to plan it smoothed less write `fit: relief` in the sidecar "
+               "(the relief is lowered instead) or `smooth_mm: ...` with the smoothing you "
+               "want"})
+    held.report["hold"] = hold
+    if held.report.get("fit") is not None:
+        held.report["fit"]["held"] = {
+            "smooth_mm": hold["smooth_mm"], "first_smooth_mm": was,
+            "first_mean_displacement_fraction": first["simulation"]["mean_displacement_fraction"],
+            "first_fidelity": first.get("fidelity")}
+    held.report["warnings"] = list(held.problems)
+    return held

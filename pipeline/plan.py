@@ -86,7 +86,7 @@ class Plan:
 STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
 
 
-def plan_file(path, profile, progress=None, force_fit=False, method=None):
+def plan_file(path, profile, progress=None, force_fit=False, method=None, held_smooth_mm=None):
     """Run the pipeline on one input file.
 
     Parameters
@@ -96,6 +96,8 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     progress : callable(stage, message), optional
     force_fit : fit the relief (free method) even where the sidecar asks for a height
     method : the layout method, over the sidecar's ``method`` and the profile's
+    held_smooth_mm : the smoothing at which a first plan's sheet held its shape
+        (:func:`pipeline.fitting.take_hold`): planned with it, and no further looks
 
     Returns
     -------
@@ -126,6 +128,8 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
         profile = replace(profile, flatten=replace(profile.flatten, method=method))
         result.profile = profile
     opts = sidecar_settings(sidecar, profile)
+    if held_smooth_mm is not None:
+        opts["smooth_mm"] = held_smooth_mm
     t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])
     hf, vrep = validate(hf, opts["max_fill_mm"], bed_mm=profile.bed_mm)
     result.validated = hf
@@ -153,8 +157,12 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
                                        result.report["simulation"]["relief_mm"], path.stem)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
-    if not result.printable:
+    if not result.printable and held_smooth_mm is None:
         _alternatives(result, given, profile, opts, section, path.stem, say)
+        held = fitting.take_hold(result, sidecar, lambda smooth_mm: plan_file(
+            path, profile, progress, force_fit, method, held_smooth_mm=smooth_mm))
+        if held is not None:
+            return held
     result.report.update(gate=section, printable=result.printable,
                          needs_decision=result.needs_decision, warnings=list(result.problems))
     return result
