@@ -135,7 +135,8 @@ def write_outputs(st, plan):
     st.write_image(out["input.png"], hfimage.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed%s)" % (name, count, _input_note(plan)),
-        isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+        isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count,
+        removed_mm=getattr(plan.fit, "removed_map", None) if plan.fit is not None else None))
 
 
 def link_problems(stats, profile):

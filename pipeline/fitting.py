@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.input.simplify import simplify
+from pipeline.layout import keep, local
 from pipeline.layout.fit import fit_height, scaled
 from pipeline.layout.reach import reach
 from pipeline.problems import INVALID_AREA_WARN
@@ -34,17 +35,25 @@ def fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
     result.fit = _fit(result, hf, profile, opts, smooth_first=mode != "relief")
     timing["fit"] = time.perf_counter() - t
     fit = result.fit
+    fit.keep = keep.of_fit(fit, _size_mm(result.validated), profile.layers)
+    to_keep = keep.sentence(fit.keep)
+    to_keep = "; " + to_keep if to_keep else ""
     if fit.applied_smooth_mm is not None:
         smoothed = fit.smoothed
-        fit.removed_mm = float(np.nanmean(np.abs(smoothed.z - hf.z)))
-        # The looks that follow (the hold) start from the smoothing applied.
-        opts["smooth_mm"] = fit.applied_smooth_mm
+        _removed(fit, hf, smoothed)
+        if fit.local is None:
+            # The looks that follow (the hold) start from the smoothing applied.
+            opts["smooth_mm"] = fit.applied_smooth_mm
+        how = ("smoothed %g mm" % fit.applied_smooth_mm if fit.local is None else
+               "smoothed where the sheet cannot form it (up to %g mm, %.0f %% of the sheet "
+               "moved more than 0.1 mm; as given elsewhere)" % (
+                   fit.applied_smooth_mm, 100 * fit.local["moved_share"]))
         result.problems.append({
             "code": "fit.smoothed",
-            "message": "smoothed %g mm, keeping the relief (%.1f mm): %s; the smoothing "
-                       "moves the surface by %.2f mm on average" % (
-                           fit.applied_smooth_mm, fit.max_height_mm, fit.reason,
-                           fit.removed_mm),
+            "message": "%s, keeping the relief (%.1f mm): %s; the smoothing "
+                       "moves the surface by %.2f mm on average (9 in 10 points by at most "
+                       "%.2f mm)%s" % (how, fit.max_height_mm, fit.reason, fit.removed_mm,
+                                       fit.removed_p90_mm, to_keep),
             "fix": "nothing to do; to keep the narrow features write `fit: relief` in the "
                    "sidecar (the relief is lowered instead, and the sheet misses them) or "
                    "`fit: off`"})
@@ -52,14 +61,14 @@ def fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
     if fit.applied_scale < 1.0:
         result.problems.append({
             "code": "fit.lowered",
-            "message": "the relief was lowered from %.1f to %.1f mm (%.0f %%): %s" % (
+            "message": "the relief was lowered from %.1f to %.1f mm (%.0f %%): %s%s" % (
                 fit.requested_height_mm, fit.max_height_mm, 100 * fit.applied_scale,
-                fit.reason),
+                fit.reason, to_keep),
             "fix": "nothing to do; to plan the full relief anyway write `fit: off` in the "
                    "sidecar, or ask for a height there (%s)%s" % (
                        fit.sidecar_line(), fit.smoothing_advice())})
         lowered = scaled(hf, fit.applied_scale)
-        fit.removed_mm = float(np.nanmean(np.abs(lowered.z - hf.z)))
+        _removed(fit, hf, lowered)
         return lowered
     return hf
 
@@ -111,9 +120,11 @@ def _fit(result, hf, profile, opts, smooth_first=False):
     fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
                      fine_mm=profile.mesh.grid_mm,
                      fine_iterations=profile.flatten.free_iterations,
-                     resmooth=_resmooth(result, opts),
+                     resmooth=_resmooth(result, hf, opts, profile),
                      reach_of=lambda field, mesh, flat: reach(field, mesh, flat, profile),
                      smooth_first=smooth_first)
+    if profile.flatten.fit_smoothing == "local" and fit.applied_smooth_mm is not None:
+        fit.local = {"blend_mm": local.BLEND_MM}
     # A sidecar's height_mm sets the input's highest point, before the smoothing that
     # lowers the peaks: its line must ask for more than the relief that forms.
     top = float(np.nanmax(result.input_hf.z))
@@ -122,10 +133,33 @@ def _fit(result, hf, profile, opts, smooth_first=False):
     return fit
 
 
-def _resmooth(result, opts):
-    """The input as validated, smoothed ``smooth_mm`` instead of the sidecar's amount."""
+def _resmooth(result, hf, opts, profile):
+    """The second lever at ``smooth_mm``: the input as validated smoothed that much
+    instead of the sidecar's amount (``flatten.fit_smoothing: global``), or ``hf``
+    smoothed up to that much only where the sheet cannot form it (``local``,
+    :mod:`pipeline.layout.local`)."""
+    if profile.flatten.fit_smoothing == "local":
+        fits = {}
+
+        def at(smooth_mm):
+            if "fit" not in fits:
+                fits["fit"] = local.LocalFit(hf, *local.limits(profile),
+                                             measure_mm=profile.mesh.grid_mm)
+            return fits["fit"].at(smooth_mm)
+        return at
     return lambda smooth_mm: simplify(result.validated, opts["min_prominence_mm"],
                                       smooth_mm)[0]
+
+
+def _removed(fit, hf, fitted_hf):
+    """What the lever applied removed from ``hf``: the map (``fit.removed_map``, mm), its
+    mean and 90th percentile, and for a local smoothing the share moved at all."""
+    fit.removed_map = local.removed(hf, fitted_hf)
+    inside = fit.removed_map[np.isfinite(fit.removed_map)]
+    fit.removed_mm = float(inside.mean())
+    fit.removed_p90_mm = float(np.percentile(inside, 90))
+    if fit.applied_smooth_mm is not None and isinstance(fit.local, dict):
+        fit.local["moved_share"] = round(float((inside > 0.1).mean()), 4)
 
 
 def take_hold(result, sidecar, plan_again):
@@ -165,3 +199,10 @@ def take_hold(result, sidecar, plan_again):
             "first_fidelity": first.get("fidelity")}
     held.report["warnings"] = list(held.problems)
     return held
+
+
+def _size_mm(hf):
+    """The footprint's longest side (mm), as the sidecar's ``size_mm`` means it."""
+    inside = np.isfinite(hf.z)
+    rows, cols = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
+    return float(max(rows[-1] - rows[0], cols[-1] - cols[0]) * hf.pixel_mm)

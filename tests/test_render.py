@@ -253,6 +253,23 @@ def test_heightfield_image_rings_the_removed_peaks():
     assert rows == hf.z.shape[0]
 
 
+def test_heightfield_image_maps_where_the_fit_moved_the_surface():
+    hf = shapes.dome(diameter_mm=80, height_mm=20, pixel_mm=1.0)
+    rows, cols = hf.z.shape
+    moved = np.where(np.isfinite(hf.z), 0.0, np.nan)
+    moved[:, : cols // 3] = np.where(np.isfinite(hf.z[:, : cols // 3]), 1.0, np.nan)  # west
+    plain = np.asarray(hfimage.heightfield_image(hf.z, [], hf.pixel_mm)).astype(int)
+    img = hfimage.heightfield_image(hf.z, [], hf.pixel_mm, removed_mm=moved)
+    a = np.asarray(img).astype(int)
+    s = img.info["px_per_mm"]
+    ox, oy = img.info["origin_px"]
+    at = lambda x, y: (int(round(oy - s * y)), int(round(ox + s * x)))
+    to_tint = lambda c: np.abs(c - np.array(hfimage.REMOVED_COLOR)).sum()
+    # Tinted toward the fit's colour where it moved the surface, untouched elsewhere.
+    assert to_tint(a[at(15.0, 40.0)]) < to_tint(plain[at(15.0, 40.0)]) - 40
+    assert np.array_equal(a[at(60.0, 40.0)], plain[at(60.0, 40.0)])
+
+
 def test_heightfield_image_on_real_terrain():
     png = SHARED / "data" / "terrain" / "coast_mountains_bc.png"
     if not png.exists():
