@@ -23,6 +23,7 @@ from pipeline.pictures import figure, hfimage, render, texture
 from pipeline.errors import PipelineError, PlanError
 from pipeline.plan import plan_file
 from pipeline.problems import BLOCKING
+from pipeline.simulation import fidelity
 
 TEXTURE_DPI = 300
 
@@ -125,15 +126,19 @@ def write_outputs(st, plan, keep=None):
         st.write_image(out["stress.png"], render.stress_image(
             flat.xy, mesh.printing_edges, flat.sigma, lim.s_min, lim.s_max, faces=mesh.faces,
             title="%s: flat layout, shrink per printing edge" % name))
+    # The file as given beside the sheet, the target planned (smoothed, lowered) third.
+    given, sheet, off = fidelity.against_given(sim.vertices, target, plan.validated)
     st.write_image(out["preview.png"], render.preview_image(
-        target, sim_faces, sim.vertices, disp, title=preview_title(plan),
-        inverted_faces=plan.inverted["faces"] if plan.inverted else None))
+        target, sim_faces, sheet, off, title=preview_title(plan),
+        inverted_faces=plan.inverted["faces"] if plan.inverted else None,
+        given_vertices=given, target_label=_target_label(plan)))
     removed = plan.simplified.get("removed_peaks", [])
     count = int(plan.simplified.get("removed_count", len(removed)))
     st.write_image(out["input.png"], hfimage.heightfield_image(
         plan.hf.z, removed_peaks=removed, pixel_mm=plan.hf.pixel_mm,
         title="%s: input as meshed (%d small peaks removed%s)" % (name, count, _input_note(plan)),
-        isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count))
+        isoline_step_mm=prof.mesh.isoline_step_mm, removed_count=count,
+        removed_mm=getattr(plan.fit, "removed_map", None) if plan.fit is not None else None))
 
 
 def link_problems(stats, profile):
@@ -171,13 +176,27 @@ def preview_title(plan):
 
 
 def _input_note(plan):
-    """What the fit did to the input before it was meshed: '' or ', ...'."""
+    """What the fit did to the input before it was meshed, and which side of a mesh was
+    taken as up: '' or ', ...'."""
+    up = getattr(plan.input_hf, "up", None) if getattr(plan, "input_hf", None) else None
+    note = (", mesh read with %s up (%s)" % (up["up"], "sidecar" if up["chosen"] == "sidecar"
+                                              else "its height-field side") if up else "")
+    return note + _fit_input_note(plan)
+
+
+def _fit_input_note(plan):
     fit = getattr(plan, "fit", None)
     if fit is not None and fit.applied_smooth_mm is not None:
         return ", smoothed %g mm by the fit" % fit.applied_smooth_mm
     if fit is not None and fit.applied_scale < 1.0:
         return ", relief lowered to %.0f %% by the fit" % (100 * fit.applied_scale)
     return ""
+
+
+def _target_label(plan):
+    """The preview's third view: the target planned, and what the fit did to the file."""
+    note = _fit_input_note(plan)
+    return "planned target" + (" (%s)" % note[2:] if note else "")
 
 
 def _fit_note(plan):

@@ -194,12 +194,16 @@ class HeightField:
         Optional surface colour per sample.
     source : str
         Where it came from (file name or shape name), for messages.
+    up : dict or None
+        For a mesh, which of its sides was taken as up and how
+        (:func:`pipeline.input.meshread.orientation`); None for images and arrays.
     """
 
     z: np.ndarray
     pixel_mm: float
     color: np.ndarray = None
     source: str = ""
+    up: dict = None
 
     @property
     def footprint(self):

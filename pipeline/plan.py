@@ -14,28 +14,27 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import __version__, alternatives, printable
+from pipeline import __version__, alternatives, fitting, printable
 from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
 from pipeline.input.simplify import simplify
 from pipeline.input.validate import validate
 from pipeline.geometry import quarter_turn
 from pipeline.layout import curvature
-from pipeline.layout.fit import fit_height, scaled
 from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.reach import reach
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
 from pipeline.paths.isoline import plan_toolpaths
-from pipeline.problems import (BLOCKING, INVALID_AREA_WARN, fold_area_fraction,
+from pipeline.problems import (BLOCKING, fold_area_fraction,
                                free_layout_problems, hold_problems, layout_problems,
                                other_method_problems, relief_problems,
                                simulation_problems)
 from pipeline.paths.sheet import Sheet
 from pipeline.paths.stripes import stripe_toolpaths
 from pipeline.simulation.forward import simulate
-from pipeline.simulation import inverted
+from pipeline.simulation import fidelity, inverted
 from pipeline.simulation.staged import simulate_free
 from pipeline.simulation.resample import onto_grid
 from pipeline.simulation.shell import directional_rest, simulate_shell, thickness_for
@@ -87,7 +86,7 @@ class Plan:
 STAGES = ("load", "validate", "mesh", "flatten", "simulate", "toolpath")
 
 
-def plan_file(path, profile, progress=None, force_fit=False, method=None):
+def plan_file(path, profile, progress=None, force_fit=False, method=None, held_smooth_mm=None):
     """Run the pipeline on one input file.
 
     Parameters
@@ -97,6 +96,8 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
     progress : callable(stage, message), optional
     force_fit : fit the relief (free method) even where the sidecar asks for a height
     method : the layout method, over the sidecar's ``method`` and the profile's
+    held_smooth_mm : the smoothing at which a first plan's sheet held its shape
+        (:func:`pipeline.fitting.take_hold`): planned with it, and no further looks
 
     Returns
     -------
@@ -127,6 +128,8 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
         profile = replace(profile, flatten=replace(profile.flatten, method=method))
         result.profile = profile
     opts = sidecar_settings(sidecar, profile)
+    if held_smooth_mm is not None:
+        opts["smooth_mm"] = held_smooth_mm
     t = stage("validate", "checking topology, filling pits up to %.3g mm" % opts["max_fill_mm"])
     hf, vrep = validate(hf, opts["max_fill_mm"], bed_mm=profile.bed_mm)
     result.validated = hf
@@ -137,22 +140,29 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None):
 
     given = hf
     if profile.flatten.method == "free":
-        hf = _fitted(result, hf, profile, sidecar, opts, stage, timing, force_fit)
+        hf = fitting.fitted(result, hf, profile, sidecar, opts, stage, timing, force_fit)
         result.hf = hf
         _free_sheet(result, hf, profile, stage, timing)
-        _refuse_too_high(result, hf, profile, sidecar, opts, timing)
+        fitting.refuse_too_high(result, hf, profile, sidecar, opts, timing)
     else:
         _isoline_sheet(result, hf, profile, path, stage, timing, opts)
     result.inverted = inverted.settled_inverted(result.sim, result.mesh)
     result.problems += inverted.problems(result.inverted, path.stem)
     timing["total"] = time.perf_counter() - t_all
     result.report = _report(path, profile, result, vrep, srep, timing)
+    t = time.perf_counter()
+    result.report["fidelity"] = fidelity.of_plan(result, profile)
+    result.report["timing_s"]["fidelity"] = round(time.perf_counter() - t, 4)
     result.problems += relief_problems(result.sim.mean_displacement_mm,
                                        result.report["simulation"]["relief_mm"], path.stem)
     section, problems = printable.gate(result.report, profile.printable, path.stem)
     result.problems += problems
-    if not result.printable:
+    if not result.printable and held_smooth_mm is None:
         _alternatives(result, given, profile, opts, section, path.stem, say)
+        held = fitting.take_hold(result, sidecar, lambda smooth_mm: plan_file(
+            path, profile, progress, force_fit, method, held_smooth_mm=smooth_mm))
+        if held is not None:
+            return held
     result.report.update(gate=section, printable=result.printable,
                          needs_decision=result.needs_decision, warnings=list(result.problems))
     return result
@@ -233,116 +243,6 @@ def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
         result.xy_bed, mesh.faces, mesh.vertex_level, mesh.printing_edges, flat.sigma,
         profile.path_width_mm, merge_angle_deg=tp.merge_angle_deg, merge_sigma=tp.merge_sigma)
     timing["toolpath"] = time.perf_counter() - t
-
-
-def _height_asked(sidecar):
-    return sidecar is not None and (sidecar.height_mm is not None
-                                     or sidecar.height_scale is not None)
-
-
-def _fitted(result, hf, profile, sidecar, opts, stage, timing, force=False):
-    """Make the relief form when nobody asked for a height (it came from the profile's
-    defaults or the file's own units) and the sidecar allows it: smoothed where that
-    forms the relief as given (``fit: auto``), else lowered."""
-    mode = (sidecar.fit if sidecar is not None else None) or "auto"
-    if not force and (mode == "off" or _height_asked(sidecar)):
-        return hf
-    t = stage("fit", "how high the sheet can rise")
-    result.fit = _fit(result, hf, profile, opts, smooth_first=mode != "relief")
-    timing["fit"] = time.perf_counter() - t
-    fit = result.fit
-    if fit.applied_smooth_mm is not None:
-        smoothed = fit.smoothed
-        fit.removed_mm = float(np.nanmean(np.abs(smoothed.z - hf.z)))
-        # The looks that follow (the hold) start from the smoothing applied.
-        opts["smooth_mm"] = fit.applied_smooth_mm
-        result.problems.append({
-            "code": "fit.smoothed",
-            "message": "smoothed %g mm, keeping the relief (%.1f mm): %s; the smoothing "
-                       "moves the surface by %.2f mm on average" % (
-                           fit.applied_smooth_mm, fit.max_height_mm, fit.reason,
-                           fit.removed_mm),
-            "fix": "nothing to do; to keep the narrow features write `fit: relief` in the "
-                   "sidecar (the relief is lowered instead, and the sheet misses them) or "
-                   "`fit: off`"})
-        return smoothed
-    if fit.applied_scale < 1.0:
-        result.problems.append({
-            "code": "fit.lowered",
-            "message": "the relief was lowered from %.1f to %.1f mm (%.0f %%): %s" % (
-                fit.requested_height_mm, fit.max_height_mm, 100 * fit.applied_scale,
-                fit.reason),
-            "fix": "nothing to do; to plan the full relief anyway write `fit: off` in the "
-                   "sidecar, or ask for a height there (%s)%s" % (
-                       fit.sidecar_line(), fit.smoothing_advice())})
-        lowered = scaled(hf, fit.applied_scale)
-        fit.removed_mm = float(np.nanmean(np.abs(lowered.z - hf.z)))
-        return lowered
-    return hf
-
-
-def _refuse_too_high(result, hf, profile, sidecar, opts, timing):
-    """A relief the sidecar asked for that does not form is refused, with the sidecar
-    line that would make it form."""
-    if not (_height_asked(sidecar) and result.flat.invalid_area_fraction > INVALID_AREA_WARN):
-        return
-    t = time.perf_counter()
-    result.fit = _fit(result, hf, profile, opts)
-    result.fit.applied_scale = 1.0
-    result.fit.reason = "asked for in the sidecar; " + result.fit.reason
-    timing["fit"] = time.perf_counter() - t
-    result.problems.append({
-        "code": "fit.too_high",
-        "message": "the relief asked for (%s) does not form: %.1f %% of the sheet "
-                   "needs more than the material can do; at most %.1f mm forms" % (
-                       _asked(result.fit), 100 * result.flat.invalid_area_fraction,
-                       result.fit.max_height_mm),
-        "fix": _too_high_fix(result.fit, Path(sidecar.source).name if sidecar.source else "")})
-
-
-def _too_high_fix(fit, sidecar_name):
-    """The sidecar lines that form a relief asked for: the smoothing that keeps the
-    height first, where one does (it changes the input least), then the lower height."""
-    where = "in the sidecar %s" % sidecar_name
-    if fit.min_smooth_mm is not None:
-        return ("write `smooth_mm: %g` %s to keep the height (narrower features smoothed "
-                "away) or `%s` (the relief lowered to what forms), or remove the height to "
-                "let hostd fit it" % (fit.min_smooth_mm, where, fit.sidecar_line()))
-    return "write `%s` %s (or remove its height to let hostd fit it)" % (fit.sidecar_line(),
-                                                                           where)
-
-
-def _asked(fit):
-    """The relief asked for, and what smoothing left of it where that differs."""
-    asked, planned = fit.requested_sidecar_mm(), fit.requested_height_mm
-    if abs(asked - planned) < 0.05:
-        return "%.1f mm" % planned
-    return "%.1f mm; %.1f mm once smoothed" % (asked, planned)
-
-
-def _fit(result, hf, profile, opts, smooth_first=False):
-    """The fit of ``hf``, both levers: the relief, and the smoothing of the input as
-    validated (``result.validated``) that would form it at full height, within the
-    stack's curvature reach; ``smooth_first`` applies the smoothing where one forms."""
-    lim = profile.shrink_limits
-    fit = fit_height(hf, lim.s_min, lim.s_max, opts["smooth_mm"],
-                     fine_mm=profile.mesh.grid_mm,
-                     fine_iterations=profile.flatten.free_iterations,
-                     resmooth=_resmooth(result, opts),
-                     reach_of=lambda field, mesh, flat: reach(field, mesh, flat, profile),
-                     smooth_first=smooth_first)
-    # A sidecar's height_mm sets the input's highest point, before the smoothing that
-    # lowers the peaks: its line must ask for more than the relief that forms.
-    top = float(np.nanmax(result.input_hf.z))
-    if fit.requested_height_mm > 0 and top > 0:
-        fit.sidecar_per_mm = top / fit.requested_height_mm
-    return fit
-
-
-def _resmooth(result, opts):
-    """The input as validated, smoothed ``smooth_mm`` instead of the sidecar's amount."""
-    return lambda smooth_mm: simplify(result.validated, opts["min_prominence_mm"],
-                                      smooth_mm)[0]
 
 
 def _free_sheet(result, hf, profile, stage, timing):
@@ -452,6 +352,7 @@ def _report(path, profile, p, vrep, srep, timing):
             "filled_volume_mm3": float(vrep["filled_volume_mm3"]),
             "deepest_fill_mm": float(vrep.get("deepest_fill_mm", 0.0)),
             "has_color": hf.color is not None,
+            **({"up": p.input_hf.up} if p.input_hf.up else {}),
             "simplified": {"peaks_before": int(srep.get("peaks_before", 0)),
                            "peaks_after": int(srep.get("peaks_after", 0)),
                            "removed_peaks": int(srep.get("removed_count",

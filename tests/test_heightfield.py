@@ -93,6 +93,18 @@ def test_grey_rgb_accepted_colour_rgb_refused(tmp_path):
     assert _code(e) == "heightfield.not_2d"
 
 
+def test_an_image_without_a_height_gets_a_relief_in_proportion_to_its_size(tmp_path):
+    g = np.round(_bump() * 255).astype(np.uint8)            # 40 x 60 samples
+    Image.fromarray(g).save(tmp_path / "t.png")
+    (tmp_path / "t.yaml").write_text("size_mm: 60\n")
+    hf, _ = H.load(tmp_path / "t.png")
+    # The default 30 mm belongs to the default 150 mm: at 60 mm, 12 mm (same slopes).
+    assert np.nanmax(hf.z) == pytest.approx(12.0)
+    (tmp_path / "t.yaml").write_text("size_mm: 60\nheight_mm: 25\n")
+    hf, _ = H.load(tmp_path / "t.png")
+    assert np.nanmax(hf.z) == pytest.approx(25.0)
+
+
 def test_tiff16_and_float_tiff(tmp_path):
     a = _bump()
     Image.fromarray(np.round(a * 65535).astype(np.uint16)).save(tmp_path / "a.tif")
@@ -146,9 +158,15 @@ def test_color_png_resampled(tmp_path):
     assert _code(e) == "heightfield.color_mismatch"
 
 
+def _top_half(mesh):
+    """The upper half of a closed mesh, open at z = 0: a surface, not a solid (a closed
+    solid is refused, :mod:`tests.test_mesh_up`)."""
+    return mesh.slice_plane([0, 0, 0], [0, 0, 1])
+
+
 @pytest.mark.parametrize("ext", ["stl", "ply", "obj", "glb"])
 def test_mesh_top_surface(tmp_path, ext):
-    sphere = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
+    sphere = _top_half(trimesh.creation.icosphere(subdivisions=4, radius=20.0))
     path = tmp_path / ("ball." + ext)
     sphere.export(path)
     (tmp_path / "ball.yaml").write_text("pixel_mm: 0.5\n")
@@ -184,7 +202,7 @@ def test_mesh_solid_block_keeps_top_only(tmp_path):
 
 
 def test_mesh_vertex_colours(tmp_path):
-    m = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    m = _top_half(trimesh.creation.icosphere(subdivisions=3, radius=10.0))
     colors = np.zeros((len(m.vertices), 4), np.uint8)
     colors[:, 3] = 255
     colors[m.vertices[:, 0] > 0, 0] = 255  # east half red
@@ -200,7 +218,7 @@ def test_mesh_vertex_colours(tmp_path):
 
 
 def test_mesh_size_mm_scales_uniformly(tmp_path):
-    trimesh.creation.icosphere(subdivisions=3, radius=1.0).export(tmp_path / "u.stl")
+    _top_half(trimesh.creation.icosphere(subdivisions=3, radius=1.0)).export(tmp_path / "u.stl")
     (tmp_path / "u.yaml").write_text("size_mm: 40\n")
     hf, _ = H.load(tmp_path / "u.stl")
     assert np.nanmax(hf.z) == pytest.approx(20.0, abs=0.3)

@@ -121,3 +121,26 @@ def test_each_look_simulates_the_sheet_as_the_plan_would_print_it(monkeypatch):
                                              60.0, fit_height_too=False)
     assert calls and len(calls) == len(held["tried"])
     assert all(kw.get("twist", True) and kw.get("across", True) for kw in calls)
+
+
+def test_a_fit_that_lays_out_but_does_not_hold_takes_the_smoothing_that_holds(tmp_path):
+    """Nobody asked for a height and the fit may smooth: the plan does not wait for a
+    person to write the smoothing its own look found, it plans with it and says so."""
+    hf = shapes.terrain_tile(width_mm=60.0, depth_mm=45.0, height_mm=12.0)
+    path = tmp_path / "tile.npy"
+    np.save(path, hf.z)
+    path.with_name("tile.yaml").write_text("pixel_mm: %r\nmethod: free\n" % float(hf.pixel_mm))
+    prof = load_profile("generic-0.5mm")
+    # As given the tile lays out and ends 0.36 % of its diameter off; smoothed 3-4 mm,
+    # under 0.3 %: a profile allowing 0.32 % holds it only smoothed.
+    prof = dataclasses.replace(prof, printable=dataclasses.replace(
+        prof.printable, max_mean_displacement=0.0032))
+    r = plan_file(path, prof).report
+    assert r["printable"], r["gate"]
+    held = r["fit"]["held"]
+    assert held["smooth_mm"] == r["hold"]["smooth_mm"] == r["fit"]["smooth_mm"] > 1.0
+    assert held["first_mean_displacement_fraction"] > 0.0032
+    assert r["simulation"]["mean_displacement_fraction"] <= 0.0032
+    note = [w for w in r["warnings"] if w["code"] == "fit.held"]
+    assert note and ("smoothed %g mm instead of 1 mm" % held["smooth_mm"]) in note[0]["message"]
+    assert not [w for w in r["warnings"] if w["code"] in ("plan.hold", "printable.displacement")]

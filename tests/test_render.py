@@ -201,6 +201,24 @@ def test_preview_simulated_hotspot_lands_where_the_displacement_is(dome_mesh):
     assert dark_red(east) > 10 * max(dark_red(west), 1)
 
 
+def test_preview_shows_the_file_as_given_first_the_sheet_then_the_target(dome_mesh):
+    v, f = dome_mesh
+    given = v.copy()
+    given[:, 2] *= 1.5                     # the file: a dome half again as high
+    img = render.preview_image(v, f, v, np.linalg.norm(v - given, axis=1), panel_px=(400, 300),
+                               contour_mm=None, given_vertices=given,
+                               target_label="planned target (smoothed 6 mm)")
+    a = np.asarray(img).astype(int)
+    assert img.width >= 1200
+    warm = lambda p: ((p[..., 0] - p[..., 2]) > 60).sum()
+    ink = lambda p: (p.max(axis=-1) < 250).sum()
+    first, second, third = a[:, 20:400], a[:, 420:800], a[:, 820:1200]
+    # Neutral file and target, the sheet coloured by its distance from the file.
+    assert warm(first) < 50 and warm(third) < 50 and warm(second) > 5000
+    # The file stands higher than the target in the same view: more of its panel drawn.
+    assert ink(first) > 1.1 * ink(third)
+
+
 def test_toolpath_image_marks_starts_travel_and_invalid_segments():
     traces = [np.array([[0.0, 0.0], [60.0, 0.0], [60.0, 1.0], [0.0, 1.0]]),
               np.array([[0.0, 20.0], [60.0, 20.0]])]
@@ -233,6 +251,23 @@ def test_heightfield_image_rings_the_removed_peaks():
     red = (ring[:, 0] > 150) & (ring[:, 1] < 110) & (ring[:, 2] < 110)
     assert red.mean() > 0.7
     assert rows == hf.z.shape[0]
+
+
+def test_heightfield_image_maps_where_the_fit_moved_the_surface():
+    hf = shapes.dome(diameter_mm=80, height_mm=20, pixel_mm=1.0)
+    rows, cols = hf.z.shape
+    moved = np.where(np.isfinite(hf.z), 0.0, np.nan)
+    moved[:, : cols // 3] = np.where(np.isfinite(hf.z[:, : cols // 3]), 1.0, np.nan)  # west
+    plain = np.asarray(hfimage.heightfield_image(hf.z, [], hf.pixel_mm)).astype(int)
+    img = hfimage.heightfield_image(hf.z, [], hf.pixel_mm, removed_mm=moved)
+    a = np.asarray(img).astype(int)
+    s = img.info["px_per_mm"]
+    ox, oy = img.info["origin_px"]
+    at = lambda x, y: (int(round(oy - s * y)), int(round(ox + s * x)))
+    to_tint = lambda c: np.abs(c - np.array(hfimage.REMOVED_COLOR)).sum()
+    # Tinted toward the fit's colour where it moved the surface, untouched elsewhere.
+    assert to_tint(a[at(15.0, 40.0)]) < to_tint(plain[at(15.0, 40.0)]) - 40
+    assert np.array_equal(a[at(60.0, 40.0)], plain[at(60.0, 40.0)])
 
 
 def test_heightfield_image_on_real_terrain():

@@ -18,6 +18,7 @@ from hostd import jobs as J
 from hostd import share
 from hostd.errors import HostdError
 from hostd.watcher import shown
+from hostd.web.shape import shape_lines
 
 PAGE_STATES = ("idle", "heating", "printing", "paused", "error", "disconnected")
 _STATE_MAP = {"connecting": "disconnected", "stopped": "disconnected", None: "disconnected"}
@@ -341,6 +342,7 @@ class NodeView:
                     info["layers"] = count
         if with_report:
             info["report"] = self.report(job)
+            info["shape"] = shape_lines(info["report"])
             info["events"] = self.store.events(job["id"])
         return info
 

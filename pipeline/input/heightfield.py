@@ -2,7 +2,8 @@
 
 Inputs: 8/16-bit grayscale PNG/TIFF (LA/RGBA alpha = 0 is outside; 32-bit
 float TIFF too), ``.npy``/``.npz`` (float, millimetres, NaN outside) and
-STL/OBJ/PLY/GLB meshes (top surface sampled on a grid from above). Physical
+STL/OBJ/PLY/GLB meshes (top surface sampled on a grid from whichever side is up,
+:mod:`pipeline.input.meshread`). Physical
 scale comes from the optional sidecar ``NAME.yaml`` or the profile's
 ``defaults``. Everything a host should not trust is refused before it costs
 memory: the declared pixel count is checked from the header before decoding.
@@ -11,7 +12,8 @@ Error codes (``InvalidHeightField``): ``heightfield.not_found``, ``.empty``,
 ``.unsupported_type`` (extension), ``.content_mismatch`` (bytes are not what
 the extension says), ``.truncated``, ``.unreadable``, ``.too_many_pixels``,
 ``.pickled``, ``.bad_dtype``, ``.npz_key``, ``.not_2d``, ``.non_finite``,
-``.no_footprint``, ``.flat``, ``.too_small``, ``.color_mismatch``. The
+``.no_footprint``, ``.flat``, ``.too_small``, ``.color_mismatch``,
+``.not_a_heightfield`` (a mesh facing away from every axis). The
 sidecar is read by :mod:`pipeline.input.sidecar`.
 """
 
@@ -26,15 +28,13 @@ from pipeline.input.regular import opener
 from pipeline.errors import InvalidHeightField
 from pipeline.geometry import HeightField
 from pipeline.profiles.profile import Defaults, ValidateParams
-from pipeline.pictures.raster import pixel_barycentrics, rasterize_triangles
+from pipeline.input import meshread
+from pipeline.input.meshread import MESH_PIXEL_MM
 from pipeline.input.sidecar import load_sidecar, sidecar_path
 
 IMAGE_EXT = (".png", ".tif", ".tiff")
 ARRAY_EXT = (".npy", ".npz")
 MESH_EXT = (".stl", ".obj", ".ply", ".glb")
-
-# Grid pitch for meshes without pixel_mm: about the paper's path width.
-MESH_PIXEL_MM = 0.5
 
 _MAGIC = {
     ".png": (b"\x89PNG\r\n\x1a\n",),
@@ -80,13 +80,15 @@ def load(path, profile=None, max_pixels=None):
     if max_pixels is None:
         max_pixels = limits.max_pixels
 
-    color = None
+    color, up = None, None
     if ext in IMAGE_EXT:
-        values, unit_height = _read_image(path, max_pixels), defaults.height_mm
+        values = _read_image(path, max_pixels)
+        unit_height = image_relief_mm(_pixel_mm(values, sidecar, defaults.size_mm), values,
+                                      defaults)
     elif ext in ARRAY_EXT:
         values, unit_height = _read_array(path, ext, max_pixels), None
     else:
-        values, color, pixel_mm = _read_mesh(path, sidecar, max_pixels)
+        values, color, pixel_mm, up = _read_mesh(path, sidecar, max_pixels)
         unit_height = None
     z = _to_mm(values, path, sidecar, unit_height)
     if ext not in MESH_EXT:
@@ -94,7 +96,7 @@ def load(path, profile=None, max_pixels=None):
     _check_size(z, path, limits.min_pixels)
     if color is None:
         color = _read_color(path, z.shape, max_pixels)
-    return HeightField(z, float(pixel_mm), color=color, source=name), sidecar
+    return HeightField(z, float(pixel_mm), color=color, source=name, up=up), sidecar
 
 
 def check_file(path):
@@ -330,6 +332,16 @@ def _to_mm(v, path, sidecar, unit_height_mm):
     return z
 
 
+def image_relief_mm(pixel_mm, values, defaults):
+    """The relief of an image without a height: the profile's ``defaults.height_mm`` at
+    ``defaults.size_mm``, in proportion at other sizes. Slopes and curvatures are what
+    decide whether a sheet forms a shape, and they stay the same when the relief scales
+    with the size: a 60 mm tile given the 30 mm of a 150 mm one is five times as steep."""
+    h, w = _footprint_span(values)
+    size = pixel_mm * max(h - 1, w - 1, 1)
+    return defaults.height_mm * size / defaults.size_mm
+
+
 def _pixel_mm(z, sidecar, default_size_mm):
     if sidecar.pixel_mm is not None:
         return sidecar.pixel_mm
@@ -383,8 +395,9 @@ def _read_color(path, shape, max_pixels):
 
 
 def _read_mesh(path, sidecar, max_pixels):
-    """Top surface of a mesh: z (rows, cols) in mm (mesh units, scaled by ``size_mm``),
-    colour (rows, cols, 3) uint8 or None, pixel_mm."""
+    """Top surface of a mesh, seen from its up side (:mod:`pipeline.input.meshread`):
+    z (rows, cols) in mm (mesh units, scaled by ``size_mm``), colour (rows, cols, 3)
+    uint8 or None, pixel_mm, and the report's ``up``."""
     import trimesh  # heavy import, only for mesh inputs
 
     name = str(path)
@@ -409,50 +422,23 @@ def _read_mesh(path, sidecar, max_pixels):
     if not np.isfinite(verts).all():
         raise _fail("heightfield.non_finite", "mesh has non-finite vertex coordinates", name,
                     "repair the mesh")
+    up, up_report = meshread.orientation(
+        verts, faces, sidecar.up,
+        lambda code, msg, fix, **details: _fail(code, msg, name, fix, **details))
+    verts = meshread.turned_up(verts, up)
     span = np.ptp(verts[:, :2], axis=0).max()
     if sidecar.size_mm is not None and span > 0:
         verts = verts * (sidecar.size_mm / span)  # uniform: keeps the shape's proportions
     pixel_mm = sidecar.pixel_mm or MESH_PIXEL_MM
-    lo, hi = verts[:, :2].min(axis=0), verts[:, :2].max(axis=0)
-    cols, rows = (np.floor((hi - lo) / pixel_mm + 1e-9).astype(int) + 1)
-    if rows * cols > max_pixels:
-        raise _fail("heightfield.too_many_pixels", "sampling the mesh at %g mm needs %d x %d "
-                    "samples, more than the limit of %d" % (pixel_mm, cols, rows, max_pixels),
-                    name, "set a larger pixel_mm in the sidecar", pixels=int(rows * cols),
-                    max_pixels=max_pixels)
-    # One ray straight down per sample, first hit kept = a z-buffer seen from above.
-    # The rasteriser samples pixel centres (+0.5); our samples sit on grid points.
-    xy = np.column_stack([(verts[:, 0] - lo[0]) / pixel_mm + 0.5,
-                          (hi[1] - verts[:, 1]) / pixel_mm + 0.5])
-    face_id = rasterize_triangles(xy, -verts[:, 2], faces, (rows, cols))
-    r, c, face, w = pixel_barycentrics(xy, faces, face_id)
-    corners = faces[face]
-    z = np.full((rows, cols), np.nan)
-    z[r, c] = np.einsum("ij,ij->i", w, verts[corners, 2])
-    color = None
-    vc = _mesh_vertex_colors(mesh)
-    if vc is not None:
-        color = np.zeros((rows, cols, 3), np.uint8)
-        rgb = np.einsum("ij,ijk->ik", w, vc[corners])
-        color[r, c] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-    return z, color, pixel_mm
 
-
-def _mesh_vertex_colors(mesh):
-    """(n, 3+) vertex colours from vertex or texture visuals, or None."""
-    visual = getattr(mesh, "visual", None)
-    try:
-        kind = visual.kind if visual is not None else None
-        if kind == "texture":
-            visual = visual.to_color()
-            kind = visual.kind
-        if kind == "vertex":
-            c = np.asarray(visual.vertex_colors)
-            if c.shape[0] == len(mesh.vertices) and not (c[:, :3] == c[0, :3]).all():
-                return c[:, :3].astype(np.float64)
-    except Exception:  # colour is optional; a broken texture must not block the heights
-        return None
-    return None
+    def too_many(rows, cols):
+        return _fail("heightfield.too_many_pixels", "sampling the mesh at %g mm needs %d x %d "
+                     "samples, more than the limit of %d" % (pixel_mm, cols, rows, max_pixels),
+                     name, "set a larger pixel_mm in the sidecar", pixels=int(rows * cols),
+                     max_pixels=max_pixels)
+    z, color = meshread.top_surface(verts, faces, pixel_mm, max_pixels, too_many,
+                                    meshread.vertex_colors(mesh))
+    return z, color, pixel_mm, up_report
 
 
 def coarsen(hf, pixel_mm):

@@ -35,6 +35,8 @@ class Sidecar:
     smoothed where that forms it at full height, else lowered (``auto``); only lowered
     (``relief``); as given (``off``)
     method : ``isoline`` or ``free``: the layout method (overrides the profile's)
+    up : for a mesh, the axis that points up: ``x``, ``y``, ``z``, ``-x``, ``-y`` or ``-z``
+    (default: the one along which its surface is a height field)
     source : the sidecar file, or None when there is none
     """
 
@@ -48,6 +50,7 @@ class Sidecar:
     smooth_mm: float = None
     fit: str = None
     method: str = None
+    up: str = None
     copies: int = 1
     priority: int = 0
     source: str = None
@@ -59,7 +62,7 @@ _SIDECAR_SCHEMA = {"size_mm": ("float", True), "pixel_mm": ("float", True),
                    "profile": ("str", False), "max_fill_mm": ("float", False),
                    "min_prominence_mm": ("float", False), "smooth_mm": ("float", False),
                    "copies": ("int", True), "fit": ("str", False), "method": ("str", False),
-                   "priority": ("int", None)}
+                   "up": ("str", False), "priority": ("int", None)}
 
 
 # A sidecar holds a few keys; anything larger is refused unparsed.
@@ -216,12 +219,18 @@ _CHOICES = {
     "method": (("isoline", "free"), "write `method: isoline` (paths along the isolines: domes "
                                     "and caps) or `method: free` (a print direction per "
                                     "triangle: also saddles, valleys, real terrain)"),
+    "up": (("x", "y", "z", "-x", "-y", "-z"),
+           "write the axis the mesh's top faces, e.g. `up: y` for an OBJ from Blender, "
+           "`up: z` for most STL, `up: -z` for one upside down"),
 }
 
 
 def _sidecar_value(key, value, kind, positive, src):
     if key == "fit" and isinstance(value, bool):
         value = "auto" if value else "off"      # YAML reads a bare off as false
+    if key == "up" and isinstance(value, str):
+        value = value.strip().lower()
+        value = value[1:] if value.startswith("+") else value
     if kind == "str":
         if not isinstance(value, str) or not value:
             raise InvalidSidecar("%s must be a non-empty string" % key,

@@ -52,7 +52,12 @@ class Fit:
     the quick mesh); smooth_reach : [(smooth_mm, reach p90)] of the smoothing solves;
     removed_mm : the mean height change (mm) the plan makes to the input by the lever it
     applies (smoothing or lowering), None where it applies none; smoothed : the input
-    smoothed ``applied_smooth_mm``, the field the plan then takes.
+    smoothed ``applied_smooth_mm``, the field the plan then takes. keep : what would form
+    the input as given (:mod:`pipeline.layout.keep`), None where not looked at.
+    removed_p90_mm : the 90th percentile of the height change; removed_map : (rows, cols)
+    mm, the change per sample (NaN outside); local : the smoothing was applied only where
+    the sheet cannot form the input (:mod:`pipeline.layout.local`): ``{"blend_mm",
+    "moved_share"}`` (the share of the footprint moved more than 0.1 mm), else None.
     """
 
     requested_height_mm: float
@@ -72,6 +77,10 @@ class Fit:
     smooth_reach: list = field(default_factory=list)
     removed_mm: float = None
     smoothed: HeightField = None
+    keep: dict = None
+    removed_p90_mm: float = None
+    removed_map: np.ndarray = None
+    local: dict = None
 
     def report(self):
         """The report's ``fit`` section."""
@@ -87,7 +96,12 @@ class Fit:
                 "sidecar_height_mm": self.sidecar_height_mm(),
                 "applied_smooth_mm": self.applied_smooth_mm, "reach_given": self.reach_given,
                 "smooth_reach": [[sm, round(p, 4)] for sm, p in self.smooth_reach],
-                "removed_mm": None if self.removed_mm is None else round(self.removed_mm, 3)}
+                "removed_mm": None if self.removed_mm is None else round(self.removed_mm, 3),
+                "removed_p90_mm": (None if self.removed_p90_mm is None
+                                   else round(self.removed_p90_mm, 3)),
+                "smoothing": "local" if self.local is not None else "global",
+                **({"local": self.local} if self.local is not None else {}),
+                **({"keep": self.keep} if self.keep is not None else {})}
 
     def requested_sidecar_mm(self):
         """The relief as given, in the sidecar's terms (mm)."""

@@ -35,8 +35,11 @@ def _hillshade(z, pixel_mm, azimuth_deg=315.0, altitude_deg=45.0):
     return np.clip((nx * lx + ny * ly + nz * lz) / norm, 0.0, 1.0)
 
 
+REMOVED_COLOR = (150, 40, 160)
+
+
 def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_mm=None,
-                      long_px=900, removed_count=None):
+                      long_px=900, removed_count=None, removed_mm=None, removed_at_mm=0.25):
     """Hillshaded height field with isolines and the peaks that simplification removed.
 
     Parameters
@@ -55,6 +58,9 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     removed_count : int, optional
         How many peaks were removed in all, when ``removed_peaks`` lists only the
         most prominent ones.
+    removed_mm : (rows, cols) float, mm, optional
+        What the fit removed per sample: the places it moved by more than
+        ``removed_at_mm`` are tinted and outlined.
 
     Returns
     -------
@@ -82,6 +88,13 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)[..., None]
     canvas = np.clip(rgb, 0, 255) * a + WHITE * (1 - a)
 
+    moved = None
+    if removed_mm is not None:
+        moved = np.nan_to_num(np.asarray(removed_mm, np.float64), nan=0.0)
+        big = np.asarray(Image.fromarray((moved > removed_at_mm).astype(np.float32), "F")
+                         .resize((W, H), Image.BILINEAR), np.float64)[..., None]
+        canvas = canvas * (1 - 0.35 * big * a) + np.array(REMOVED_COLOR) * 0.35 * big * a
+
     step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
     levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)
     if len(levels):
@@ -95,6 +108,13 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
             bold = abs(lev / step / 5 - round(lev / step / 5)) < 1e-6
             draw_segments(canvas, (q0 + 0.5) * f, (q1 + 0.5) * f, (70, 52, 40),
                           1.5 if bold else 0.8)
+    if moved is not None and (moved > removed_at_mm).any():
+        gen = contourpy.contour_generator(z=moved, line_type="SeparateCode")
+        segs = [line for line in gen.lines(removed_at_mm)[0] if len(line) > 1]
+        if segs:
+            q0 = np.concatenate([s_[:-1] for s_ in segs])
+            q1 = np.concatenate([s_[1:] for s_ in segs])
+            draw_segments(canvas, (q0 + 0.5) * f, (q1 + 0.5) * f, REMOVED_COLOR, 2.0)
     peaks = list(removed_peaks)
     if peaks:
         c = np.array([[p["x_mm"] / pixel_mm, rows - 1 - p["y_mm"] / pixel_mm] for p in peaks])
@@ -112,6 +132,11 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     _, yb = colorbar(fig, lx, ly, 26, min(300, max(180, H // 2)), "height", zmin, zmax,
                      "height (mm)", fs=fs)
     y = swatch(fig, lx, yb + fs, (70, 52, 40), f"isolines every {fmt_number(step)} mm", fs)
+    if moved is not None and (moved > removed_at_mm).any():
+        share = float((moved > removed_at_mm).sum() / max(valid.sum(), 1))
+        y = swatch(fig, lx, y, REMOVED_COLOR, f"fit moved > {fmt_number(removed_at_mm)} mm", fs)
+        y = stat_lines(fig, lx, y, [f"on {100 * share:.0f} % (max {np.nanmax(moved):.1f} mm)"],
+                       fs)
     total = max(int(removed_count or 0), len(peaks))
     if total:
         shown = "" if total == len(peaks) else f" ({len(peaks)} shown)"

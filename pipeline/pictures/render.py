@@ -304,8 +304,10 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
 
 def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, title="",
                   panel_px=(760, None), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None,
-                  contour_mm="auto", inverted_faces=None):
-    """Target and simulated shape side by side in one oblique view, error as colour.
+                  contour_mm="auto", inverted_faces=None, given_vertices=None,
+                  target_label="target"):
+    """Target and simulated shape side by side in one oblique view, error as colour; with
+    ``given_vertices``, the file as given, the sheet, and the planned target third.
 
     Parameters
     ----------
@@ -325,6 +327,10 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     inverted_faces : (m,) bool, optional
         Faces of the regions that settled the other way up
         (:func:`pipeline.simulation.inverted.inverted_regions`), hatched on the simulated shape.
+    given_vertices : (n, 3) float, mm, optional
+        The input as given at each target vertex (before smoothing or lowering): drawn
+        first, the sheet beside it (``simulated_vertices`` and ``displacement_mm`` then
+        against it), the target planned third under ``target_label``.
 
     Returns
     -------
@@ -341,28 +347,36 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     height_mm = float(np.ptp(tv[:, 2])) if len(tv) else 0.0
     if contour_mm == "auto":
         contour_mm = nice_ceil(height_mm / 10) if height_mm > 0 else None
+    gv = None if given_vertices is None else np.asarray(given_vertices, np.float64)
+    shown = [tv, sv] if gv is None else [gv, sv, tv]
     pw, ph = panel_px
     if ph is None:  # fit the width, then take the height the shape needs (within reason)
-        (_, _), s = view_fit([tv, sv], (pw, 10 * pw), elevation_deg, azimuth_deg)
+        (_, _), s = view_fit(shown, (pw, 10 * pw), elevation_deg, azimuth_deg)
         cam = camera_basis(elevation_deg, azimuth_deg)
-        sy = np.concatenate([project(tv, cam[1:2]), project(sv, cam[1:2])])
+        sy = np.concatenate([project(v, cam[1:2]) for v in shown])
         ph = int(np.clip(np.ptp(sy) * s / 0.84 + 1, 0.45 * pw, 1.1 * pw))
-    fit = view_fit([tv, sv], (pw, ph), elevation_deg, azimuth_deg)
+    fit = view_fit(shown, (pw, ph), elevation_deg, azimuth_deg)
     kw = dict(size_px=(pw, ph), elevation_deg=elevation_deg, azimuth_deg=azimuth_deg, fit=fit,
               contour_mm=contour_mm)
-    a, _ = shaded_view(tv, faces, None, **kw)
     hatch = None if inverted_faces is None or not np.any(inverted_faces) else inverted_faces
     b, _ = shaded_view(sv, faces, disp, 0.0, vmax, "displacement", hatch=hatch, **kw)
+    sim_label = f"simulated (mean {mean_d:.2f} mm, max {max_d:.2f} mm)"
+    if gv is None:
+        panels = [(shaded_view(tv, faces, None, **kw)[0], "target"), (b, sim_label)]
+    else:
+        panels = [(shaded_view(gv, faces, None, **kw)[0], "your file, as given"),
+                  (b, sim_label.replace("simulated (", "simulated (from your file: ")),
+                  (shaded_view(tv, faces, None, **kw)[0], target_label)]
     fs = 16
     label_h = 34
-    body = Image.new("RGB", (2 * pw, ph + label_h), (255, 255, 255))
+    body = Image.new("RGB", (len(panels) * pw, ph + label_h), (255, 255, 255))
     draw = ImageDraw.Draw(body)
-    for k, (im, label) in enumerate([(a, "target"),
-                                     (b, f"simulated (mean {mean_d:.2f} mm, max {max_d:.2f} mm)")]):
+    for k, (im, label) in enumerate(panels):
         body.paste(im, (k * pw, label_h), im)
         tw = text_size(label, font(fs))[0]
         draw.text((k * pw + (pw - tw) / 2, 6), label, font=font(fs), fill=INK)
-    draw.line([pw, label_h, pw, ph + label_h - 10], fill=(225, 225, 228), width=1)
+    for k in range(1, len(panels)):
+        draw.line([k * pw, label_h, k * pw, ph + label_h - 10], fill=(225, 225, 228), width=1)
     diam = np.ptp(tv[:, :2], axis=0)
     sub = (f"target {diam[0]:.0f} x {diam[1]:.0f} x {height_mm:.1f} mm  |  {len(faces)} triangles  |  "
            f"view from {elevation_deg:.0f} deg above the horizon")

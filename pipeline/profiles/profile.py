@@ -133,6 +133,9 @@ class FlattenParams:
     # How the plan checks an isoline layout: the paper's projective dynamics, or the
     # thin shell the free method uses (printed thickness, converges under refinement).
     simulation: str = _str("paper", choices=("paper", "shell"))
+    # How the fit smooths a relief the sheet cannot form: the whole field as much as its
+    # worst spot needs (global), or only where it does not form, blended (local).
+    fit_smoothing: str = _str("global", choices=("global", "local"))
     w_bridge: float = _num(1.0, strict=False)
     w_printing: float = _num(1.0, strict=False)
     w_bending: float = _num(0.025, strict=False)
