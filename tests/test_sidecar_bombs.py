@@ -109,7 +109,7 @@ def test_a_reason_of_any_length_is_bounded_in_the_record_and_the_error_file(tmp_
     try:
         write_dome(d.config.drop_dir / "t.npy")
         tick_until(d, lambda: len(d.store.list()) == 1)
-        d._fail(d.store.list()[0], "x" * 10 ** 6, "test.long")
+        d.endings.fail(d.store.list()[0], "x" * 10 ** 6, "test.long")
         job = d.store.list()[0]
         assert len(job["error"]) < MAX_REASON_CHARS + 100
         assert "more characters not shown" in job["error"]
