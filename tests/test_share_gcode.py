@@ -13,13 +13,14 @@ EDIT = "M104 S295 ; written on the share\n"
 
 def _printing(d):
     """Record the text of every G-code file a print starts from."""
-    printed, real = [], d._spool
+    printing = d.lookup("printing")
+    printed, real = [], printing._spool
 
     def spool(job, gcode):
         path = real(job, gcode)
         printed.append(Path(path).read_text())
         return path
-    d._spool = spool
+    printing._spool = spool
     return printed
 
 
