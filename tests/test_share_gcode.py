@@ -29,6 +29,11 @@ def _done(d, n):
                what="%d printed" % n)
 
 
+def _bed_cleared(d):
+    """A person takes the sheet off: the printer waits for that after every print."""
+    d.control.clear(d.slots[0].name)
+
+
 def _edit_share_copies(d, job):
     """Append the edit to every G-code of the job's plan on the share (outbox and cache)."""
     found = list(Path(job["outbox"]).glob("*.gcode")) + \
@@ -46,6 +51,7 @@ def test_an_edited_cache_is_not_printed_when_the_file_is_dropped_again(tmp_path)
         printed = _printing(d)
         write_dome(d.config.drop_dir / "a.npy")
         _done(d, 1)
+        _bed_cleared(d)
         _edit_share_copies(d, d.store.list()[0])
         write_dome(d.config.drop_dir / "a.npy")
         _done(d, 2)
@@ -81,6 +87,7 @@ def test_a_plan_only_the_share_holds_is_planned_again(tmp_path):
         printed = _printing(d)
         write_dome(d.config.drop_dir / "a.npy")
         _done(d, 1)
+        _bed_cleared(d)
         job = d.store.list()[0]
         _edit_share_copies(d, job)
         # As if another node had planned it: the share's cache has it, this node has not.
