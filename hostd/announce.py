@@ -31,10 +31,17 @@ def node_uuid(state_dir):
     except (OSError, ValueError):
         pass
     value = str(uuid.uuid4())
-    path.parent.mkdir(parents=True, exist_ok=True)
-    part = path.with_name(path.name + ".part")
-    part.write_text(value + "\n")
-    part.replace(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        part = path.with_name(path.name + ".part")
+        part.write_text(value + "\n")
+        part.replace(path)
+    except OSError as exc:
+        # A full state folder must not take the API down: a uuid of the folder's path,
+        # the same at every try until the file can be written.
+        log.warning("cannot keep this node's uuid in %s (%s); using one derived from the "
+                    "folder's path until it can be written", path, exc.strerror)
+        return str(uuid.uuid5(uuid.NAMESPACE_URL, "hostd:" + str(path.resolve())))
     return value
 
 

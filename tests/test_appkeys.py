@@ -225,3 +225,24 @@ def test_store_file_is_private(tmp_path):
     db = sqlite3.connect(tmp_path / FILE)
     assert {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")} \
         == {"requests", "keys"}
+
+
+def test_the_page_needs_no_key_store_and_survives_a_broken_one(tmp_path):
+    n = Node(tmp_path)
+    page = n.client.get("/")
+    assert page.status_code == 200 and 'id="appkeys"' in page.get_data(as_text=True)
+    assert not (n.config.state_dir / FILE).exists()       # a page view creates nothing
+    (n.config.state_dir / FILE).mkdir()                    # unreadable as a database
+    assert n.client.get("/").status_code == 200
+    r = n.client.get("/api/printer", headers={"X-Api-Key": "k" * 32})
+    assert r.status_code == 503 and r.json["code"] == "appkeys.store"
+    n.store.close()
+
+
+def test_node_uuid_without_a_writable_state_folder_is_still_stable(tmp_path):
+    from hostd.announce import node_uuid
+    blocker = tmp_path / "state"
+    blocker.write_text("a file where the folder should be")
+    first = node_uuid(blocker / "sub")
+    assert first == node_uuid(blocker / "sub") and len(first) == 36
+    assert node_uuid(tmp_path / "ok") == node_uuid(tmp_path / "ok") != first

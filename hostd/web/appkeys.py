@@ -12,10 +12,11 @@ as OctoPrint does, with its error shape ``{"error": ...}``.
 """
 
 import logging
+import sqlite3
 
 from flask import Blueprint, current_app, jsonify, request, url_for
 
-from hostd.appkeys import KeyStore, clean_app
+from hostd.appkeys import FILE, KeyStore, clean_app
 from hostd.errors import HostdError
 from hostd.web import api, pages
 
@@ -63,7 +64,12 @@ def client_problem():
 @bp.before_app_request
 def refuse_bad_keys():
     if request.path.startswith("/api/") and request.headers.get("X-Api-Key"):
-        if not api.view().config.web.token or store().check(request.headers["X-Api-Key"]) is None:
+        try:
+            valid = api.view().config.web.token and store().check(request.headers["X-Api-Key"])
+        except (sqlite3.Error, OSError) as exc:     # a full or unreadable state folder
+            return octo_error(503, "the application keys cannot be read (%s: %s); free space "
+                                   "in the state folder" % (FILE, exc), code="appkeys.store")
+        if not valid:
             return octo_error(403, "Invalid API key", code="appkeys.invalid")
     return None
 
@@ -71,9 +77,17 @@ def refuse_bad_keys():
 @bp.app_context_processor
 def keys_on_page():
     def appkeys():
-        if not api.view().config.web.token:
+        """The page's section: None when keys are off; never creates the store (a page must
+        render on a full disk, and a node nobody asked a key of needs no file)."""
+        config = api.view().config
+        if not config.web.token:
             return None
-        return dict(pending=store().pending(), keys=store().keys())
+        if not (config.state_dir / FILE).exists():
+            return dict(pending=[], keys=[])
+        try:
+            return dict(pending=store().pending(), keys=store().keys())
+        except (sqlite3.Error, OSError):
+            return None
     return dict(appkeys=appkeys)
 
 
