@@ -56,8 +56,10 @@ def test_a_twisted_sheet_prints_its_upper_layers_on_paths_of_their_own(saddle_pl
     tw, across = r["curvature"]["twist"], r["curvature"]["across"]
     assert tw["crossed_mean_displacement_mm"] < 0.95 * tw["along_mean_displacement_mm"]
     assert across["kept"] and tw["kept"] and tw["with_across"] and not tw["crossed_at_rest"]
+    # Compared on the coarse sheet; the plan's mesh rests where that one did.
+    assert across["coarse_mm"] == tw["coarse_mm"] == 2.5
     assert r["simulation"]["mean_displacement_mm"] == pytest.approx(
-        across["tried_mean_displacement_mm"])
+        across["tried_mean_displacement_mm"], rel=0.1, abs=0.05)
     d_b, d_t = plan.curvature.group_directions(plan.flat.direction)
     assert np.allclose(np.linalg.norm(d_t, axis=1), 1.0) and not np.allclose(d_b, d_t)
     up = r["toolpath"]["upper"]
@@ -89,7 +91,7 @@ def test_a_dome_does_not_twist_and_prints_every_layer_on_one_set_of_paths(tmp_pa
     assert plan.upper_toolpaths is None and "upper" not in r["toolpath"]
     assert "upper_traces" not in r["gcode"]
     assert r["simulation"]["mean_displacement_mm"] == pytest.approx(
-        r["curvature"]["twist"]["along_mean_displacement_mm"])
+        r["curvature"]["twist"]["along_mean_displacement_mm"], rel=0.1, abs=0.05)
     # Tried for a few iterations from the settled sheet, not settled a second time.
     assert not r["curvature"]["twist"]["crossed_at_rest"]
 

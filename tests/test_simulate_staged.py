@@ -116,3 +116,44 @@ def test_a_shape_carried_to_the_fine_mesh_keeps_what_is_linear():
     def plane(P):
         return np.c_[P[:, 0] + 2.0, -P[:, 1], 0.3 * P[:, 0] - 0.2 * P[:, 1] + 1.0]
     assert np.allclose(staged.carried(coarse, plane(CV), V), plane(V), atol=1e-9)
+
+
+def test_the_relaid_layout_on_the_plans_mesh_starts_from_the_coarse_sheets(saddle,
+                                                                           monkeypatch):
+    """The saddle keeps the stack on its relaid layout: on the plan's mesh that layout is
+    solved from the coarse sheet's, carried, a few iterations a pass, and lands where the
+    cold solve (60 iterations a pass from the first layout) does, to a few hundredths of
+    a millimetre."""
+    from pipeline.layout import compensate
+    hf, profile, mesh, flat = saddle
+    starts = []
+    solve = compensate.relaid
+
+    def recorded(vertices, *args, **kw):
+        if len(vertices) == len(mesh.vertices):
+            starts.append((kw.get("start"), kw.get("iterations")))
+        return solve(vertices, *args, **kw)
+    monkeypatch.setattr(compensate, "relaid", recorded)
+    prog, _ = staged.simulate_free(hf, mesh, flat, profile)
+    assert programmed.choice_of(prog) == "across_relaid"
+    assert len(starts) == programmed.RELAY_PASSES
+    assert all(s is not None and it == programmed.WARM_ITERATIONS for s, it in starts)
+    # The first pass starts off the first layout, where the coarse sheet's relaid one lies.
+    assert np.abs(starts[0][0] - flat.xy).max() > 0.05
+    make = programmed.Programs(hf, mesh, flat, profile)
+    cold, _ = make.stack(True, True, make.programmed(0.0))
+    # Where the layout lies on the bed does not matter (the plan centres it): compared
+    # once turned and moved onto the cold one.
+    off = np.abs(_onto(prog.layout.xy, cold.layout.xy) - cold.layout.xy).max()
+    assert off < 0.05 and off < 0.2 * np.abs(cold.layout.xy - flat.xy).max()
+
+
+def _onto(P, Q):
+    """``P`` ((n, 2)) turned and moved to lie nearest ``Q`` (Kabsch)."""
+    p, q = P - P.mean(axis=0), Q - Q.mean(axis=0)
+    u, _, vt = np.linalg.svd(p.T @ q)
+    R = u @ vt
+    if np.linalg.det(R) < 0:
+        u[:, -1] *= -1
+        R = u @ vt
+    return p @ R + Q.mean(axis=0)

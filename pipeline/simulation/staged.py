@@ -79,7 +79,9 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=CO
         prog, settle = _chosen(hf, mesh, flat, profile, which, twist, start)
         sim = settle(start=carried(cmesh, csim.vertices, mesh.vertices),
                      rest_tol=FINE_REST_TOL)
-    prog.twist, prog.across = cprog.twist, _across_report(cprog.across, prog)
+    # The comparisons' figures are the coarse sheet's: they say on which sheet.
+    prog.twist = None if cprog.twist is None else dict(cprog.twist, coarse_mm=coarse_mm)
+    prog.across = _across_report(cprog.across, prog, coarse_mm)
     t2, c2 = time.perf_counter(), time.process_time()
     sim = dataclasses.replace(sim, coarse_iterations=sum(tally),
                               timing_s={"coarse": t1 - t0, "full": t2 - t1, "total": t2 - t0,
@@ -108,15 +110,16 @@ def _xy(mesh):
     return np.asarray(mesh.vertices, dtype=float)[:, :2]
 
 
-def _across_report(coarse_across, prog):
+def _across_report(coarse_across, prog, coarse_mm):
     """The coarse sheet's ``across`` comparison, with the relaid layout's solve the one
     on the plan's mesh where that layout is the one printed."""
     if coarse_across is None:
         return None
+    out = dict(coarse_across, coarse_mm=coarse_mm)
     relaid = (prog.across or {}).get("relaid")
-    if relaid is None:
-        return dict(coarse_across)
-    return dict(coarse_across, relaid=dict(relaid, chosen=coarse_across["chosen"] == 0))
+    if relaid is not None:
+        out["relaid"] = dict(relaid, chosen=coarse_across["chosen"] == 0)
+    return out
 
 
 def spacing_mm(mesh):
