@@ -51,7 +51,7 @@ def test_a_link_process_that_died_is_replaced_by_a_new_one(tmp_path):
 
 
 def test_closing_a_link_process_that_is_still_connecting_does_not_wait_for_the_connect():
-    """A printer that never answers takes a connect its whole budget (about 20 s); a daemon
+    """A printer that never answers takes a connect its whole budget (here about 70 s); a daemon
     stopping meanwhile closes its link at once, as with a thread-based link."""
     import pty
     import threading
@@ -60,7 +60,8 @@ def test_closing_a_link_process_that_is_still_connecting_does_not_wait_for_the_c
     from hostd.printer import LinkSettings, PrinterError
     ours, theirs = pty.openpty()          # a port that opens and never says a word
     try:
-        printer = PrinterProcess(os.ttyname(theirs), LinkSettings(reconnect=False))
+        printer = PrinterProcess(os.ttyname(theirs), LinkSettings(reconnect=False,
+                                                                  handshake_timeout_s=10.0))
         failed = []
 
         def connect():
