@@ -48,3 +48,36 @@ def test_a_link_process_that_died_is_replaced_by_a_new_one(tmp_path):
         assert first.ended and not d.slots[0].printer.ended
     finally:
         d.shutdown()
+
+
+def test_closing_a_link_process_that_is_still_connecting_does_not_wait_for_the_connect():
+    """A printer that never answers takes a connect its whole budget (here about 70 s); a daemon
+    stopping meanwhile closes its link at once, as with a thread-based link."""
+    import pty
+    import threading
+    import time
+
+    from hostd.printer import LinkSettings, PrinterError
+    ours, theirs = pty.openpty()          # a port that opens and never says a word
+    try:
+        printer = PrinterProcess(os.ttyname(theirs), LinkSettings(reconnect=False,
+                                                                  handshake_timeout_s=10.0))
+        failed = []
+
+        def connect():
+            try:
+                printer.connect()
+            except PrinterError as exc:
+                failed.append(exc)
+        thread = threading.Thread(target=connect, daemon=True)
+        thread.start()
+        time.sleep(1.0)                   # inside the handshake
+        closer = threading.Thread(target=printer.close, daemon=True)
+        closer.start()
+        closer.join(12)
+        assert not closer.is_alive() and printer.ended, "close waited for the connect"
+        thread.join(12)
+        assert failed
+    finally:
+        os.close(ours)
+        os.close(theirs)

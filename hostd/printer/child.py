@@ -34,11 +34,8 @@ def _child_main(conn):
                 pass
 
     printer = Printer(port, settings, on_event=forward)
-    while True:
-        try:
-            _, call_id, name, args = conn.recv()
-        except (EOFError, OSError):
-            name, call_id, args = "close", None, ()
+
+    def answer(call_id, name, args):
         try:
             if name == "close":
                 printer.close()
@@ -57,9 +54,20 @@ def _child_main(conn):
                 try:
                     conn.send(reply)
                 except (OSError, EOFError):
-                    return
+                    pass
+
+    while True:
+        try:
+            _, call_id, name, args = conn.recv()
+        except (EOFError, OSError):
+            name, call_id, args = "close", None, ()
         if name == "close":
+            answer(call_id, name, args)
             return
+        # Each call waits in a thread of its own, as callers of a thread-based Printer do:
+        # a connect that takes its full budget must not hold back a close or an estop.
+        threading.Thread(target=answer, args=(call_id, name, args), daemon=True,
+                         name="hostd-call-" + name).start()
 
 
 if __name__ == "__main__":
