@@ -9,11 +9,19 @@ nothing here asserts them.
     python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain |
                                                   # fine_map | layout | methods
 
+    python benchmarks/pipeline.py --only methods --models dome --tiles "" --methods free
+                                                  # one model, one method
+
 The plan, terrain and fine_map groups run each model with the paper's method
 (``isoline``) and the rest of the profile as shipped: the paper's forward
 simulation settles the coarse sheet (``mesh.l_sim_mm: 2``) and then the full
 mesh from its shape. The methods group runs both methods, each checked by the
-thin shell.
+thin shell, and keeps per model each stage's wall and CPU seconds (``stages``; the
+pictures apart from the G-code), the imports', the peak RSS, the report's
+``fidelity`` section, and, where :data:`REFERENCE_SETTLE` names one, the mean
+displacement of a full-resolution settle of the program the plan chose
+(``reference_displacement_mm``) beside the plan's own. The host (CPU, load average)
+is in ``machine``; every child runs pinned to one core.
 """
 
 import argparse

@@ -15,6 +15,7 @@ above (its vertical projection), which every height field has.
 """
 
 import hashlib
+import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ FREE_BELOW = 0.05
 # last probe is the plan's own mesh.
 SYSTEMS_KEPT = 2
 _systems = OrderedDict()
+_systems_lock = threading.Lock()  # plans may run in threads side by side
 
 
 @dataclass
@@ -254,13 +256,16 @@ def global_system(V, faces):
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     key = (V.shape, faces.shape, hashlib.blake2b(V.tobytes(), digest_size=16).digest(),
            hashlib.blake2b(faces.tobytes(), digest_size=16).digest())
-    if key in _systems:
-        _systems.move_to_end(key)
-        return _systems[key]
+    with _systems_lock:
+        system = _systems.get(key)
+        if system is not None:
+            _systems.move_to_end(key)
+            return system
     system = _global_system(V, faces)
-    _systems[key] = system
-    while len(_systems) > SYSTEMS_KEPT:
-        _systems.popitem(last=False)
+    with _systems_lock:
+        _systems[key] = system
+        while len(_systems) > SYSTEMS_KEPT:
+            _systems.popitem(last=False)
     return system
 
 
