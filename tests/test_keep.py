@@ -20,7 +20,7 @@ def test_curvature_beyond_reach_forms_at_a_larger_size_or_on_fewer_layers():
 def test_slopes_too_steep_form_at_no_size():
     k = keep(0.1, False, 60.0, 6)
     assert k["size_mm_as_given"] is None
-    assert "only a lower relief" in sentence(k)
+    assert "only a lower or smoother relief" in sentence(k)
 
 
 def test_no_stack_reaches_a_curvature_far_beyond():

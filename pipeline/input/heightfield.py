@@ -83,8 +83,9 @@ def load(path, profile=None, max_pixels=None):
     color, up = None, None
     if ext in IMAGE_EXT:
         values = _read_image(path, max_pixels)
-        unit_height = image_relief_mm(_pixel_mm(values, sidecar, defaults.size_mm), values,
-                                      defaults)
+        # An image with no footprint is refused by _to_mm, with its own message.
+        unit_height = (image_relief_mm(_pixel_mm(values, sidecar, defaults.size_mm), values,
+                                       defaults) if np.isfinite(values).any() else 1.0)
     elif ext in ARRAY_EXT:
         values, unit_height = _read_array(path, ext, max_pixels), None
     else:

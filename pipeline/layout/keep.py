@@ -70,5 +70,5 @@ def sentence(k):
                          % (k["reach_p90_one_layer"] / WITHIN))
     else:
         parts.append("its slopes are steeper than the shrink range forms at any size: only "
-                     "a lower relief forms them")
+                     "a lower or smoother relief forms them")
     return "to form the file as given: " + "; ".join(parts)
