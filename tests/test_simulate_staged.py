@@ -120,10 +120,9 @@ def test_a_shape_carried_to_the_fine_mesh_keeps_what_is_linear():
 
 def test_the_relaid_layout_on_the_plans_mesh_starts_from_the_coarse_sheets(saddle,
                                                                            monkeypatch):
-    """The saddle keeps the stack on its relaid layout: on the plan's mesh that layout is
-    solved from the coarse sheet's, carried, a few iterations a pass, and lands where the
-    cold solve (60 iterations a pass from the first layout) does, to a few hundredths of
-    a millimetre."""
+    """With ``WARM_RELAY`` the saddle's relaid layout is solved on the plan's mesh from
+    the coarse sheet's, carried, a few iterations a pass, and lands where the cold solve
+    (60 iterations a pass from the first layout) does, to a fifth of a path width."""
     from pipeline.layout import compensate
     hf, profile, mesh, flat = saddle
     starts = []
@@ -134,6 +133,7 @@ def test_the_relaid_layout_on_the_plans_mesh_starts_from_the_coarse_sheets(saddl
             starts.append((kw.get("start"), kw.get("iterations")))
         return solve(vertices, *args, **kw)
     monkeypatch.setattr(compensate, "relaid", recorded)
+    monkeypatch.setattr(staged, "WARM_RELAY", True)
     prog, _ = staged.simulate_free(hf, mesh, flat, profile)
     assert programmed.choice_of(prog) == "across_relaid"
     assert len(starts) == programmed.RELAY_PASSES
@@ -145,7 +145,7 @@ def test_the_relaid_layout_on_the_plans_mesh_starts_from_the_coarse_sheets(saddl
     # Where the layout lies on the bed does not matter (the plan centres it): compared
     # once turned and moved onto the cold one.
     off = np.abs(_onto(prog.layout.xy, cold.layout.xy) - cold.layout.xy).max()
-    assert off < 0.05 and off < 0.2 * np.abs(cold.layout.xy - flat.xy).max()
+    assert off < 0.1 and off < 0.2 * np.abs(cold.layout.xy - flat.xy).max()
 
 
 def _onto(P, Q):
