@@ -31,7 +31,7 @@ def open_file(path):
     """``path`` opened for binary reading if it is a regular file (else a HostdError;
     an OSError only for the share's own failures, or the file being gone)."""
     try:
-        return open_regular(path)
+        return open_regular(path, follow=False)
     except NotRegular as exc:
         raise HostdError("%s: refused" % exc.strerror, code=NOT_REGULAR, file=path,
                          fix="only regular files belong here; remove it") from None

@@ -123,7 +123,7 @@ def test_a_full_disk_fails_the_plan_with_its_own_code_and_frees_the_partial_outp
     child = ("import errno, sys\n"
              "from pathlib import Path\n"
              "from hostd import planner, planning\n"
-             "def full(path, profile, outdir, progress=None):\n"
+             "def full(path, profile, outdir, progress=None, keep=None):\n"
              "    (Path(outdir) / 'dome.gcode').write_bytes(b'G1 X1\\n' * 1000)\n"
              "    raise OSError(errno.ENOSPC, 'No space left on device')\n"
              "planner.run = full\n"

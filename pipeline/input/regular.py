@@ -15,10 +15,20 @@ class NotRegular(OSError):
 
 
 def opener(path, flags):
-    """An ``open(..., opener=opener)``: a descriptor of the regular file ``path``, else
-    :class:`NotRegular` (or the open's own OSError)."""
+    """An ``open(..., opener=opener)``: a descriptor of the regular file ``path`` (a
+    symlink to one is followed: ``hostd plan`` is given links), else :class:`NotRegular`
+    (or the open's own OSError)."""
+    return _open(path, flags)
+
+
+def opener_nofollow(path, flags):
+    """:func:`opener` refusing a symlink as the last component (a shared folder's files)."""
+    return _open(path, flags | os.O_NOFOLLOW)
+
+
+def _open(path, flags):
     try:
-        fd = os.open(path, flags | os.O_NONBLOCK | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0))
+        fd = os.open(path, flags | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise NotRegular(errno.ELOOP, "a symbolic link (never followed here)",
@@ -36,6 +46,6 @@ def opener(path, flags):
     return fd
 
 
-def open_regular(path):
+def open_regular(path, follow=True):
     """``path`` opened for reading in binary, if it is a regular file (else OSError)."""
-    return open(path, "rb", opener=opener)
+    return open(path, "rb", opener=opener if follow else opener_nofollow)

@@ -168,7 +168,9 @@ def load_sidecar(path):
     for key, value in data.items():
         if key not in _SIDECAR_SCHEMA:
             raise InvalidSidecar("unknown sidecar key %s" % brief(key),
-                                 code="sidecar.unknown_key", file=src, where=brief(key),
+                                 code="sidecar.unknown_key", file=src,
+                                 where=key if isinstance(key, str) and len(key) <= 40 else
+                                 brief(key),
                                  fix="use only: " + ", ".join(_SIDECAR_SCHEMA))
         kind, positive = _SIDECAR_SCHEMA[key]
         vals[key] = _sidecar_value(key, value, kind, positive, src)
