@@ -105,7 +105,8 @@ README_COLUMNS = [
     ("print time", lambda n, r: _hours(r.get("estimated_print_s"))),
     ("peak MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
 ]
-HEADLINE = ("dome", "vancouver_island_south", "coast_mountains_bc", "rough_terrain")
+HEADLINE = ("dome", "three_islands", "vancouver_island_south", "coast_mountains_bc",
+            "rough_terrain")
 
 
 def conditions():
@@ -245,31 +246,21 @@ def render(groups):
 
 
 def headline(groups):
-    """The README's rows: the headline models, with a link to the rest."""
+    """The README's rows: the free method's plans of the headline models in the methods
+    group (the current code's default), with a link to the rest."""
     models = {}
-    for name in ("plan", "terrain", "methods"):
-        for model, r in _models(groups.get(name, {}).get("results", {})).items():
-            if model.split(" ")[0] in HEADLINE:
-                # The whole-plan groups plan with the isoline method, checked by the
-                # paper's simulation; the methods group's rows are both methods under the
-                # thin shell.
-                models[model if name == "methods" else model + " (isoline, paper's sim.)"] = r
+    for model, r in _models(groups.get("methods", {}).get("results", {})).items():
+        if model.split(" ")[0] in HEADLINE and r.get("method") == "free":
+            models[model] = r
     if not models:
         return "No benchmark has been run yet: `python benchmarks/pipeline.py`."
-    cond = next((groups[g]["conditions"] for g in ("plan", "terrain", "methods")
-                 if g in groups), {})
-    runs = sorted({"%s (%s)" % (groups[g]["conditions"].get("commit", "?"),
-                                groups[g]["conditions"].get("date", "?"))
-                   for g in ("plan", "terrain", "methods") if g in groups})
+    cond = groups["methods"]["conditions"]
     return "\n".join(_table(models, README_COLUMNS) + [
-        "", "%s, one core (BLAS threads 1), commits %s. `plan s`: every stage's CPU seconds "
-        "with the imports (wall seconds where a run kept no CPU time); `distance to the "
-        "shape`: the simulated sheet from the input as given where the report measures it, "
-        "else from the target planned. Rows marked `free` or `isoline` are checked by the "
-        "thin-shell simulation (the free method's relief fitted to the material); the paper's "
-        "simulation is the shipped default for the isoline method. Every figure, with its "
-        "conditions: [docs/figures.md](docs/figures.md)." % (cond.get("cpu", "?"),
-                                                              ", ".join(runs))])
+        "", "%s, one core (BLAS threads 1), commit %s (%s), the free layout method (the "
+        "relief fitted to the material). `plan s`: every stage's CPU seconds with the imports; "
+        "`distance to the shape`: the simulated sheet from the input as given. Both methods "
+        "and every figure, with its conditions: [docs/figures.md](docs/figures.md)." % (
+            cond.get("cpu", "?"), cond.get("commit", "?"), cond.get("date", "?"))])
 
 
 def replace_block(text, body):

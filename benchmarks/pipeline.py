@@ -113,6 +113,16 @@ def clocked(*a, **k):
         gcode_cpu[0] += time.perf_counter() - t0
         gcode_cpu[1] += time.process_time() - c0
 planner._write_gcode = clocked
+settled = {}
+if reference:
+    # Keep what the plan's free settle was given, to settle its program again as the
+    # reference does (the layout before any relaid one, the target, the mesh).
+    import pipeline.plan as plan_mod
+    fast_settle = plan_mod.simulate_free
+    def keeping(*a, **k):
+        settled["args"] = (a, k)
+        return fast_settle(*a, **k)
+    plan_mod.simulate_free = keeping
 t = time.perf_counter()
 plan = planner.run(path, prof, outdir, method=method, force_fit=force_fit, progress=progress)
 marks.append(("end", time.perf_counter(), time.process_time()))
@@ -128,15 +138,19 @@ if "write" in stages:
 stages = {k: {kk: round(vv, 3) for kk, vv in v.items()} for k, v in stages.items()}
 cpu_total = round(sum(v["cpu_s"] for v in stages.values()), 3)
 r = plan.report
-ref = None
-if reference:
+# The plan's own peak, before any reference settle adds to it.
+peak_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+ref = ref_cpu = None
+if reference and "args" in settled:
     # The full-resolution settle of the program the plan chose, beside the plan's own
-    # (fast) settle: a callable "module:function" taking the plan and returning the
-    # reference SimResult (or its mean displacement, mm).
+    # (fast) settle: "module:function" called as the plan called its settle, with
+    # reference=True; it returns (program, SimResult).
     import importlib
     mod, fn = reference.split(":")
-    got = getattr(importlib.import_module(mod), fn)(plan)
-    ref = float(getattr(got, "mean_displacement_mm", got))
+    a, k = settled["args"]
+    c_ref = time.process_time()
+    got = getattr(importlib.import_module(mod), fn)(*a, **dict(k, reference=True))[1]
+    ref, ref_cpu = float(got.mean_displacement_mm), round(time.process_time() - c_ref, 3)
 ts = r["timing_s"]
 # The fit solves the plan's own layout (the flatten stage then reuses it): it counts.
 to_sim = sum(ts.get(k, 0.0) for k in ("load", "validate", "fit", "mesh", "flatten", "simulate"))
@@ -202,9 +216,10 @@ print(json.dumps({
     "coverage": round(r["toolpath"]["coverage"], 4),
     "gcode_lines": g["lines"], "gcode_bytes": g["bytes"], "moves_per_s": g["moves_per_s"],
     "estimated_print_s": g["estimated_print_s"],
-    "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    "peak_rss_mb": peak_mb,
     "imports": imports, "stages": stages, "cpu_s": cpu_total, "printable": r.get("printable"),
     "reference_displacement_mm": None if ref is None else round(ref, 3),
+    "reference_cpu_s": ref_cpu,
     "fidelity": r.get("fidelity")}))
 """
 
@@ -342,8 +357,9 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
 METHOD_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak", "terrain_tile",
                  "hyperbolic_paraboloid", "monkey_saddle", "rough_terrain")
 # The full-resolution settle the methods group sets beside each plan's own, as
-# "module:function" (called with the plan; returns a SimResult or mm); None: no column.
-REFERENCE_SETTLE = None
+# "module:function" (called as the plan calls its settle, with reference=True; returns
+# (program, SimResult)); None: no column.
+REFERENCE_SETTLE = "pipeline.simulation.staged:simulate_free"
 
 
 def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline")):

@@ -44,13 +44,16 @@ def test_only_the_readme_block_is_replaced(tmp_path):
     figures.write(res, tmp_path / "figures.md", readme)
     text = readme.read_text()
     assert text.startswith("# hostd\n\nintro\n\n") and text.endswith("\n## After\ntext\n")
-    assert "old numbers" not in text and "| dome (isoline, paper's sim.) |" in text
-    assert "starfish" not in text
-    # Both methods under one simulation join the headline rows.
-    figures.save("methods", {"dome": {"methods": {"free": dict(DOME, fit_scale=1.0)}}}, COND,
-                 folder=res)
+    # The README shows the default (free) method's plans only: the isoline whole-plan
+    # group stays in docs/figures.md.
+    assert "old numbers" not in text and "paper's sim." not in text
+    figures.save("methods", {"dome": {"methods": {"free": dict(DOME, fit_scale=1.0),
+                                                  "isoline": DOME}},
+                             "starfish": {"methods": {"free": dict(DOME, fit_scale=1.0)}}},
+                 COND, folder=res)
     figures.write(res, tmp_path / "figures.md", readme)
-    assert "| dome (free) |" in readme.read_text()
+    text = readme.read_text()
+    assert "| dome (free) |" in text and "(isoline)" not in text and "starfish" not in text
     assert "docs/figures.md" in text
     assert "| starfish |" in (tmp_path / "figures.md").read_text()
 
