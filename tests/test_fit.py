@@ -167,7 +167,9 @@ def test_a_narrow_spike_is_smoothed_and_the_relief_kept(tmp_path):
     keep = fit["keep"]
     scale, area, flips = fit["tried"][0]
     assert scale == 1.0 and keep["slopes_form"] == (area <= 0.02 and flips == 0)
-    assert keep["size_factor"] > 1.0
+    # The fit had to smooth, so the input as given fails one of the two limits: its
+    # slopes, or its curvature at this size.
+    assert not keep["slopes_form"] or keep["size_factor"] > 1.0
     if keep["slopes_form"]:
         assert "`size_mm: %d`" % np.ceil(keep["size_mm_as_given"]) in smoothed["message"]
     else:
