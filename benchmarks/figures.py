@@ -150,7 +150,8 @@ def load(folder=RESULTS):
     out = {}
     for path in sorted(Path(folder).glob("*.json")):
         doc = json.loads(path.read_text())
-        out[doc["group"]] = doc
+        if isinstance(doc, dict) and "group" in doc:   # other benchmarks keep theirs here too
+            out[doc["group"]] = doc
     return out
 
 
