@@ -52,20 +52,7 @@ def _carry(V, faces, xy, points):
     """Where the piecewise-linear map target (x, y) -> layout takes ``points`` ((k, 2)):
     inside the triangle that holds each, or by the nearest triangle's map beyond
     the mesh's edge. Returns (k, 2) mm."""
-    T = V[faces][:, :, :2]
-    tree = shapely.STRtree(shapely.polygons(np.concatenate([T, T[:, :1]], axis=1)))
-    pts = shapely.points(points)
-    which = np.full(len(points), -1, dtype=np.int64)
-    hit = tree.query(pts, predicate="intersects")
-    which[hit[0]] = hit[1]
-    lost = np.flatnonzero(which < 0)
-    if len(lost):
-        near = tree.query_nearest(pts[lost], return_distance=False)
-        which[lost[near[0]]] = near[1]
-    a, b, c = (T[which, k] for k in range(3))
-    m = np.stack([b - a, c - a], axis=2)                     # (k, 2, 2)
-    uv = np.linalg.solve(m, (points - a)[:, :, None])[:, :, 0]
-    bary = np.c_[1.0 - uv.sum(axis=1), uv]
+    which, bary = locate(np.asarray(V)[:, :2], faces, points)
     return np.einsum("kj,kjc->kc", bary, xy[faces[which]])
 
 
@@ -76,3 +63,22 @@ def _stretch_along(V, xy, faces, d):
     target = np.stack([T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]], axis=2)     # (m, 3, 2)
     coef = np.linalg.solve(flat, d[:, :, None])[:, :, 0]
     return np.linalg.norm(np.einsum("fij,fj->fi", target, coef), axis=1)
+
+
+def locate(V2, faces, points):
+    """The triangle of ``faces`` (over ``V2``, (n, 2) mm) holding each of ``points``
+    ((k, 2) mm), or the nearest one, and the points' barycentric coordinates in it:
+    ((k,) int, (k, 3))."""
+    T = V2[faces]
+    tree = shapely.STRtree(shapely.polygons(np.concatenate([T, T[:, :1]], axis=1)))
+    pts = shapely.points(points)
+    which = np.full(len(points), -1, dtype=np.int64)
+    hit = tree.query(pts, predicate="intersects")
+    which[hit[0]] = hit[1]
+    lost = np.flatnonzero(which < 0)
+    if len(lost):
+        near = tree.query_nearest(pts[lost], return_distance=False)
+        which[lost[near[0]]] = near[1]
+    a, b, c = (T[which, k] for k in range(3))
+    uv = np.linalg.solve(np.stack([b - a, c - a], axis=2), (points - a)[:, :, None])[:, :, 0]
+    return which, np.c_[1.0 - uv.sum(axis=1), uv]

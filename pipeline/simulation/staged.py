@@ -18,11 +18,11 @@ import dataclasses
 import time
 
 import numpy as np
-import shapely
 
 from pipeline.errors import MeshingError
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.simulation import programmed
+from pipeline.simulation.resample import locate
 
 # Triangle size of the sheet the trials settle on: 2.5 mm rests within 3 % of the 1 mm
 # sheet on the Vancouver tile at 175 mm (2 mm: 2 %, 3 mm: 1 %, each choosing the same
@@ -169,22 +169,3 @@ def _interpolated(V2, faces, values, points):
     beyond the mesh's edge by the nearest triangle's plane: (k, c)."""
     which, bary = locate(V2, faces, points)
     return np.einsum("kj,kjc->kc", bary, values[faces[which]])
-
-
-def locate(V2, faces, points):
-    """The triangle of ``faces`` (over ``V2``, (n, 2) mm) holding each of ``points``
-    ((k, 2) mm), or the nearest one, and the points' barycentric coordinates in it:
-    ((k,) int, (k, 3))."""
-    T = V2[faces]
-    tree = shapely.STRtree(shapely.polygons(np.concatenate([T, T[:, :1]], axis=1)))
-    pts = shapely.points(points)
-    which = np.full(len(points), -1, dtype=np.int64)
-    hit = tree.query(pts, predicate="intersects")
-    which[hit[0]] = hit[1]
-    lost = np.flatnonzero(which < 0)
-    if len(lost):
-        near = tree.query_nearest(pts[lost], return_distance=False)
-        which[lost[near[0]]] = near[1]
-    a, b, c = (T[which, k] for k in range(3))
-    uv = np.linalg.solve(np.stack([b - a, c - a], axis=2), (points - a)[:, :, None])[:, :, 0]
-    return which, np.c_[1.0 - uv.sum(axis=1), uv]
