@@ -62,6 +62,15 @@ def _printer_or_404():
     return p, None
 
 
+def _client_printer():
+    """The printer an OctoPrint client's action is for, or the answer that refuses it
+    (no key or token, or no such printer): (printer, None) or (None, response)."""
+    problem = client_problem()
+    if problem:
+        return None, problem
+    return _printer_or_404()
+
+
 @bp.get("/api/connection")
 def connection():
     p, missing = _printer_or_404()
@@ -96,12 +105,9 @@ def _done(result):
 
 @bp.post("/api/connection")
 def connection_command():
-    problem = client_problem()
-    if problem:
-        return problem
-    p, missing = _printer_or_404()
-    if missing:
-        return missing
+    p, refused = _client_printer()
+    if refused:
+        return refused
     command = (request.get_json(silent=True) or {}).get("command")
     if command == "connect":
         if not p["paused"] and p["state"] != "error":
@@ -121,12 +127,9 @@ def connection_command():
 
 @bp.post("/api/job")
 def job_command():
-    problem = client_problem()
-    if problem:
-        return problem
-    p, missing = _printer_or_404()
-    if missing:
-        return missing
+    p, refused = _client_printer()
+    if refused:
+        return refused
     body = request.get_json(silent=True) or {}
     command = body.get("command")
     job = p["job"]
