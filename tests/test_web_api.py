@@ -352,7 +352,7 @@ def test_upload_to_a_drop_folder_that_does_not_answer_is_refused_and_never_lands
     """The drop folder is on a share that stopped answering: the upload answers 503
     within its wait instead of holding a server thread, and when the share comes back
     the abandoned upload does not land after all (the person was told it did not)."""
-    from hostd.web import api as api_mod
+    from hostd.web import uploads as api_mod
     gate = threading.Event()
     real_save = api_mod.unique_path
 

@@ -6,17 +6,15 @@ that answer. An emergency stop is also written to the port from here at once, wh
 the daemon runs in this process, so it never waits for a tick.
 """
 
-import errno
 import hmac
 import json
-import os
 from pathlib import Path
 
 from flask import Blueprint, abort, current_app, jsonify, request, send_file
 
 from hostd import jobs as J
 from hostd.errors import HostdError
-from hostd.farm import unique_path
+from hostd.web import uploads
 from hostd.watcher import INPUT_SUFFIXES, ignored, name_problem
 
 bp = Blueprint("api", __name__)
@@ -161,36 +159,6 @@ def _clean_name(raw):
     return name
 
 
-def _store_upload(abandoned, folder, name, upload, sidecar):
-    """Write an upload (and sidecar) into ``folder`` under ``name`` or a free variant,
-    atomically; returns its path, or the OSError. Runs on the share helper: when the
-    request gave up waiting (``abandoned``), the parts are removed instead of renamed."""
-    parts = []
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        dest = unique_path(folder / name)
-        while os.path.lexists(dest.with_name(dest.stem + ".yaml")):
-            dest = unique_path(dest.with_name(dest.stem + "-web" + dest.suffix))
-        if sidecar is not None and sidecar.filename:
-            side_tmp = dest.with_name(dest.stem + ".yaml.part")
-            parts.append(side_tmp)
-            sidecar.save(str(side_tmp))
-        tmp = dest.with_name(dest.name + ".part")
-        parts.append(tmp)
-        upload.save(str(tmp))
-        if abandoned.is_set():
-            raise OSError(errno.ETIMEDOUT, "the request gave up waiting for the share")
-        # Sidecar first: the watcher must never see the input without it.
-        for p in parts:
-            os.rename(p, p.with_name(p.name[:-len(".part")]))
-        return dest
-    except (OSError, ValueError) as exc:   # ValueError: the request ended, its file closed
-        for p in parts:
-            if p.exists():
-                p.unlink()
-        return exc if isinstance(exc, OSError) else OSError(errno.EIO, str(exc))
-
-
 def save_upload(upload, sidecar=None, target=None):
     """Save an uploaded input (and sidecar) into the drop folder, atomically. (status, body)."""
     v = view()
@@ -213,7 +181,7 @@ def save_upload(upload, sidecar=None, target=None):
             return 400, dict(ok=False, error="no printer or profile %s on this node" % target)
         folder = folder / target
     from hostd.web.view import SHARE_HUNG
-    saved = v.share_write(_store_upload, folder, name, upload, sidecar,
+    saved = v.share_write(uploads.store, folder, name, upload, sidecar,
                           timeout_s=current_app.config.get("HOSTD_SHARE_WRITE_S"))
     if saved is SHARE_HUNG:
         return 503, dict(ok=False, error="the drop folder (%s) does not answer (a network share "

@@ -13,17 +13,14 @@ at once (``effectiveSelect``/``effectivePrint`` false).
 in the drop folder in OctoPrint's file shape, with hostd's job beside each.
 """
 
-import errno
-import os
-import secrets
+import functools
 import shutil
 from pathlib import Path
 
 from flask import Blueprint, current_app, jsonify, request, url_for
 
 from hostd import jobs as J
-from hostd.farm import unique_path
-from hostd.web import api
+from hostd.web import api, uploads
 from hostd.web.appkeys import client_problem, octo_error
 from hostd.watcher import INPUT_SUFFIXES, ignored
 
@@ -113,7 +110,8 @@ def upload():
             return octo_error(400, "no printer or profile %s on this node" % target)
         folder = folder / target
     from hostd.web.view import SHARE_HUNG
-    saved = v.share_write(_store_checked, folder, name, upload_, sidecar,
+    check = functools.partial(_check, name=name, side_name=Path(name).stem + ".yaml")
+    saved = v.share_write(uploads.store, folder, name, upload_, sidecar, check,
                           timeout_s=current_app.config.get("HOSTD_SHARE_WRITE_S"))
     if saved is SHARE_HUNG:
         return octo_error(503, "the drop folder (%s) does not answer (a network share away?): "
@@ -137,7 +135,7 @@ def _uploaded(rel, name):
     return resp
 
 
-def _check(tmp, side_tmp, name, side_name):
+def _check(tmp, side_tmp, *, name, side_name):
     """The intake's checks of a dropped file and its sidecar: None, or the PipelineError
     naming the upload (not the hidden name it was checked under)."""
     from pipeline.errors import PipelineError
@@ -155,39 +153,3 @@ def _check(tmp, side_tmp, name, side_name):
         exc.file = side_name
         return exc
     return None
-
-
-def _store_checked(abandoned, folder, name, upload, sidecar):
-    """Write, check and rename an upload into ``folder``; its path, the PipelineError that
-    refused it, or the OSError. Runs on the share helper; parts never stay behind."""
-    tag = ".upload-%s-" % secrets.token_hex(4)
-    parts = []
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        dest = unique_path(folder / name)
-        while os.path.lexists(dest.with_name(dest.stem + ".yaml")):
-            dest = unique_path(dest.with_name(dest.stem + "-web" + dest.suffix))
-        tmp = folder / (tag + dest.name)
-        parts.append(tmp)
-        upload.save(str(tmp))
-        side_tmp = None
-        if sidecar is not None:
-            side_tmp = folder / (tag + dest.stem + ".yaml")
-            parts.append(side_tmp)
-            side_tmp.write_bytes(sidecar)
-        refused = _check(tmp, side_tmp, name, Path(name).stem + ".yaml")
-        if refused is not None:
-            return refused
-        if abandoned.is_set():
-            raise OSError(errno.ETIMEDOUT, "the request gave up waiting for the share")
-        if side_tmp is not None:    # sidecar first: the watcher never sees the input alone
-            os.rename(side_tmp, dest.with_name(dest.stem + ".yaml"))
-        os.rename(tmp, dest)
-        parts.clear()
-        return dest
-    except (OSError, ValueError) as exc:
-        return exc if isinstance(exc, OSError) else OSError(errno.EIO, str(exc))
-    finally:
-        for p in parts:
-            if os.path.lexists(p):
-                p.unlink()
