@@ -1,7 +1,7 @@
 """Planning in worker processes, so the GIL never stalls serial streaming.
 
-Each plan runs in its own child (``python -m hostd.planning``), which limits its
-address space (RLIMIT_AS) and CPU time (RLIMIT_CPU) before importing anything heavy;
+Each plan runs in its own child (``python -m hostd.planning``), which loads its
+libraries and then limits its address space (RLIMIT_AS) and CPU time (RLIMIT_CPU);
 the parent also kills it after ``time_limit_s`` of wall time, and on Linux the kernel
 kills it when the thread that started it (the daemon's loop) dies. A plan that crashes,
 runs out of memory or runs away fails its own job only. The child writes
@@ -64,7 +64,8 @@ class PlanProcess:
         else:
             how = "exited with status %d" % code
         tail = stderr.strip().splitlines()[-1:] if stderr.strip() else []
-        memory = "MemoryError" in stderr
+        # OpenBLAS exits on its own when a buffer will not map: that too is the limit.
+        memory = "MemoryError" in stderr or "Memory allocation still failed" in stderr
         return {"ok": False, "code": "plan.memory_limit" if memory else "plan.crashed",
                 "text": "the planning process %s%s" % (
                     "ran out of memory (limit reached)" if memory else how,
@@ -171,17 +172,21 @@ def _stage_writer(outdir):
 def child_main(argv):
     args = json.loads(argv[0])
     _die_with_parent(args.get("parent_pid"))
-    _limit(args.get("memory_mb"), args.get("cpu_s"))
     try:
         os.nice(5)   # the streaming thread in the parent comes first
     except OSError:
         pass
     outdir = Path(args["outdir"])
+    # Loaded before the limit: OpenBLAS, loading under an address-space limit it cannot
+    # get its buffer within, retries the mmap forever (the plan spins to its CPU limit
+    # instead of failing); loaded, it allocates no more, and the plan's own arrays meet
+    # the limit as a MemoryError.
+    from hostd import planner
     from hostd.outputs import atomic_write, json_text
     from pipeline.errors import PipelineError
+    from pipeline.profiles.profile import load_profile
+    _limit(args.get("memory_mb"), args.get("cpu_s"))
     try:
-        from hostd import planner
-        from pipeline.profiles.profile import load_profile
         profile = load_profile(args["profile"])
         result = plan_result(planner.run(args["input"], profile, outdir,
                                          progress=_stage_writer(outdir), keep=args.get("keep")))
