@@ -82,6 +82,14 @@ def quarter_turn(d):
     return np.stack([-d[:, 1], d[:, 0]], axis=1)
 
 
+def on_bed(xy, bed_mm):
+    """Bed coordinates of a layout ``xy`` ((n, 2) mm): its bounding box centred on a bed
+    of ``bed_mm`` (width, depth), so the tool paths, the G-code and the screen-print
+    marks all share one frame."""
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    return xy - (lo + hi) / 2.0 + np.asarray(bed_mm, float) / 2.0
+
+
 def unique_edges(faces, return_counts=False):
     """Unique undirected edges of a triangle mesh.
 

@@ -4,8 +4,8 @@
 topology) -> mesh -> flatten -> simulate -> tool paths, by the profile's layout method
 (``flatten.method``: ``isoline``, the paper's, or ``free``, a print direction per
 triangle), and returns a :class:`Plan` holding
-every intermediate result and the ``report`` dict whose keys other tools read
-(see the README; add keys freely, never rename).
+every intermediate result and the ``report`` dict (:mod:`pipeline.report`) whose keys
+other tools read (see the README; add keys freely, never rename).
 """
 
 import time
@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import __version__, alternatives, fitting, printable
+from pipeline import alternatives, fitting, printable, report
 from pipeline.input import heightfield as hfio
 from pipeline.input.sidecar import settings as sidecar_settings
 from pipeline.input.simplify import simplify
 from pipeline.input.validate import validate
-from pipeline.geometry import quarter_turn
+from pipeline.geometry import on_bed, quarter_turn
 from pipeline.layout import curvature
 from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.reach import reach
@@ -149,7 +149,7 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None, held_s
     result.inverted = inverted.settled_inverted(result.sim, result.mesh)
     result.problems += inverted.problems(result.inverted, path.stem)
     timing["total"] = time.perf_counter() - t_all
-    result.report = _report(path, profile, result, vrep, srep, timing)
+    result.report = report.of_plan(path, profile, result, vrep, srep, timing)
     t = time.perf_counter()
     result.report["fidelity"] = fidelity.of_plan(result, profile)
     result.report["timing_s"]["fidelity"] = round(time.perf_counter() - t, 4)
@@ -237,7 +237,7 @@ def _isoline_sheet(result, hf, profile, path, stage, timing, opts):
     timing["simulate"] = time.perf_counter() - t
 
     t = stage("toolpath", "paths %.3g mm wide" % profile.path_width_mm)
-    result.xy_bed = _on_bed(flat.xy, profile)
+    result.xy_bed = on_bed(flat.xy, profile.bed_mm)
     tp = profile.toolpath
     result.toolpaths = plan_toolpaths(
         result.xy_bed, mesh.faces, mesh.vertex_level, mesh.printing_edges, flat.sigma,
@@ -279,7 +279,7 @@ def _free_sheet(result, hf, profile, stage, timing):
     # The layers across are printed on the layout solved again for their shrink: the
     # sheet, its pictures and its files are that layout's.
     flat = result.flat = result.curvature.layout or flat
-    result.xy_bed = _on_bed(flat.xy, profile)
+    result.xy_bed = on_bed(flat.xy, profile.bed_mm)
     tp = profile.toolpath
     # The shrink as printed: the layout's, with what the curvature program added.
     sigma = result.curvature.sigma
@@ -303,87 +303,3 @@ def _free_sheet(result, hf, profile, stage, timing):
         result.across_toolpaths = stripes(quarter_turn(flat.direction),
                                           lam.layer_sigma[:, lam.across].max(axis=1))
     timing["toolpath"] = time.perf_counter() - t
-
-
-def _on_bed(xy, profile):
-    """Bed coordinates: the layout's bounding box centred on the bed, so the tool paths,
-    the G-code and the screen-print marks all share one frame."""
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    return xy - (lo + hi) / 2.0 + np.asarray(profile.bed_mm, float) / 2.0
-
-
-def _json_ready(d):
-    if isinstance(d, dict):
-        return {k: _json_ready(v) for k, v in d.items()}
-    if isinstance(d, (np.floating, float)):
-        return float(d)
-    if isinstance(d, (np.integer, int)) and not isinstance(d, bool):
-        return int(d)
-    return d
-
-
-def _curvature_report(program, cp, reach_report=None):
-    """The report's ``curvature``: the program's, with the constants it was made with and
-    how far the target bends against the most the stack can curl (``reach``)."""
-    out = dict(program.report(), bilayer_c=cp.bilayer_c, bilayer_c_status=cp.status,
-               **({"reach": reach_report} if reach_report is not None else {}))
-    if "across" in out:
-        out["across"] = dict(out["across"], c_across=cp.across_constant,
-                             across_status=cp.across_status)
-    return out
-
-
-def _report(path, profile, p, vrep, srep, timing):
-    hf, mesh, flat, sim = p.hf, p.mesh, p.flat, p.sim
-    extent = np.ptp(flat.xy, axis=0)
-    relief = float(np.nanmax(hf.z) - np.nanmin(hf.z))
-    return {
-        "input": path.name,
-        "profile": profile.name,
-        "pipeline_version": __version__,
-        "heightfield": {
-            "shape": [int(s) for s in p.input_hf.z.shape],
-            "pixel_mm": float(p.input_hf.pixel_mm),
-            "working_shape": [int(s) for s in hf.z.shape],
-            "working_pixel_mm": float(hf.pixel_mm),
-            "longest_diameter_mm": float(vrep["longest_diameter_mm"]),
-            "max_height_mm": float(vrep["max_height_mm"]),
-            "filled_pits": int(vrep["filled_pits"]),
-            "filled_volume_mm3": float(vrep["filled_volume_mm3"]),
-            "deepest_fill_mm": float(vrep.get("deepest_fill_mm", 0.0)),
-            "has_color": hf.color is not None,
-            **({"up": p.input_hf.up} if p.input_hf.up else {}),
-            "simplified": {"peaks_before": int(srep.get("peaks_before", 0)),
-                           "peaks_after": int(srep.get("peaks_after", 0)),
-                           "removed_peaks": int(srep.get("removed_count",
-                                                         len(srep.get("removed_peaks", [])))),
-                           "max_change_mm": float(srep.get("max_change_mm", 0.0))},
-        },
-        "mesh": {
-            "vertices": int(len(mesh.vertices)),
-            "triangles": int(len(mesh.faces)),
-            "printing_edges": int(len(mesh.printing_edges)),
-            "bridge_edges": int(len(mesh.bridge_edges)),
-            "isolines": int(mesh.info.get("isolines", 0)),
-            "open_isolines": int(mesh.info.get("open_isolines", 0)),
-            "saddles": int(mesh.info.get("saddles", 0)),
-            "peaks": int(mesh.info.get("peaks", 0)),
-        },
-        "flatten": dict(flat.report(), flat_size_mm=[float(extent[0]), float(extent[1])],
-                        fold_area_fraction=p.fold_fraction),
-        "simulation": dict(sim.report(), mean_displacement_fraction=float(
-            sim.mean_displacement_mm / max(vrep["longest_diameter_mm"], 1e-9)),
-            relief_mm=relief,
-            mean_displacement_of_relief=float(sim.mean_displacement_mm / max(relief, 1e-9)),
-            **({"inverted": inverted.report(p.inverted)} if p.inverted else {})),
-        "toolpath": _json_ready(dict(p.toolpaths.info, **{
-            key: paths.info for key, paths in (("upper", p.upper_toolpaths),
-                                               ("across", p.across_toolpaths))
-            if paths is not None})),
-        "timing_s": {k: round(float(v), 4) for k, v in timing.items()},
-        **({"curvature": _curvature_report(p.curvature, profile.curvature, p.reach)}
-           if p.curvature is not None else {}),
-        **({"fit": p.fit.report()} if p.fit is not None else {}),
-        "printable": p.printable,
-        "warnings": list(p.problems),
-    }
