@@ -117,7 +117,7 @@ settled = {}
 if reference:
     # Keep what the plan's free settle was given, to settle its program again as the
     # reference does (the layout before any relaid one, the target, the mesh).
-    import pipeline.plan as plan_mod
+    import pipeline.layout.free_method as plan_mod
     fast_settle = plan_mod.simulate_free
     def keeping(*a, **k):
         settled["args"] = (a, k)

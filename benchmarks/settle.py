@@ -39,6 +39,7 @@ PLAN = r"""
 import functools, json, os, resource, sys, time
 os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
 from pipeline import plan as planner
+from pipeline.layout import free_method
 from pipeline.profiles.profile import load_profile
 from pipeline.simulation import programmed, staged
 path, mode = sys.argv[1], sys.argv[2]
@@ -65,7 +66,7 @@ def timed(*args, **kw):
     seen["sim"] = out[1]
     return out
 programmed.simulate_shell = timed_shell
-planner.simulate_free = timed
+free_method.simulate_free = timed
 plan = planner.plan_file(path, load_profile("generic-0.5mm"), force_fit=True, method="free")
 sim, r = seen["sim"], plan.report
 fine = [s for s in settles if s["vertices"] == len(plan.mesh.vertices)]

@@ -1,8 +1,8 @@
 """What would make a plan that is not printable print: the other layout method, and for a
 free sheet that does not hold its shape, the least smoothing at which it would.
 
-Each is a quick look, asked only of a plan the gate turned down, and answered as a
-report section; :mod:`pipeline.problems` words it as a note with the sidecar line.
+Each is a quick look, asked only of a plan the gate turned down (``look``), and answered
+as a report section; :mod:`pipeline.problems` words it as a note with the sidecar line.
 """
 
 import time
@@ -17,7 +17,8 @@ from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.meshing.isoline import build_mesh
-from pipeline.problems import FOLD_LIMIT, RELIEF_LOST, fold_area_fraction
+from pipeline.problems import (FOLD_LIMIT, RELIEF_LOST, fold_area_fraction, hold_problems,
+                               other_method_problems)
 from pipeline.simulation.staged import simulate_free
 
 # The free method's quick looks: a coarser grid and fewer iterations than its plan (a
@@ -28,6 +29,31 @@ QUICK_ITERATIONS = 100
 # The smoothing looked for doubles up to this share of the field's longest side: on the
 # real tiles the sheet holds within 3 % at 6 mm, a sixteenth of their side.
 HOLD_CAP = 0.1
+
+
+def look(result, given, method, other, opts, section, say):
+    """What would print a plan the gate turned down: the report's ``other_method``, the
+    other layout method's look at the relief as given, and for a method with a hold look
+    (``method.hold_look``) whose sheet ends too far from the shape, its ``hold``, the
+    smoothing at which it holds; each with its timing and its note in the problems.
+
+    result : the Plan; given : the HeightField before any fit; method, other : the plan's
+    layout method and the other one (:func:`pipeline.layout.method.method_for`); opts :
+    the sidecar's settings; section : the gate's; say : callable(stage, message)."""
+    say("other_method", "not printable: would the %s method form it?" % other.title)
+    t = time.perf_counter()
+    result.report["other_method"] = other.would(given, result.profile)
+    result.report["timing_s"]["other_method"] = round(time.perf_counter() - t, 4)
+    result.problems += other_method_problems(result.report["other_method"], result.name)
+    if method.hold_look and "printable.displacement" in section["outside"] and not result.blocked:
+        say("hold", "the sheet ends too far from the shape: at which smoothing would it hold?")
+        t = time.perf_counter()
+        result.report["hold"] = smoothing_that_holds(
+            result.validated, result.profile, opts,
+            result.report["heightfield"]["longest_diameter_mm"],
+            fit_height_too=result.fit is not None)
+        result.report["timing_s"]["hold"] = round(time.perf_counter() - t, 4)
+        result.problems += hold_problems(result.report["hold"], opts["smooth_mm"], result.name)
 
 
 def free_would(hf, profile):

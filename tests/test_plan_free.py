@@ -108,7 +108,7 @@ def test_the_profile_sets_how_far_a_hop_may_print_over_paths(tmp_path, monkeypat
     """`toolpath.hop_reach_widths` and `toolpath.hop_over_widths` are the hop budget every
     stripe set of the plan joins by, `toolpath.rim_tail_widths` the longest tail each
     leaves out at the edge."""
-    from pipeline import plan as plan_module
+    from pipeline.layout import free_method as plan_module
     hf = shapes.hyperbolic_paraboloid(diameter_mm=40.0, height_mm=6.0)
     np.save(tmp_path / "s.npy", hf.z)
     (tmp_path / "s.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
