@@ -1,5 +1,7 @@
 """Forward simulation (pipeline.simulation.forward, paper 6.2.4): does the layout rise into the target?"""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -20,14 +22,34 @@ def returns_to_target(mesh, rel_tol=0.01, **simulate_kwargs):
     Returns (FlatResult, SimResult, relative mean displacement).
     """
     flat = flatten(mesh)
-    sim = simulate(mesh, flat, **simulate_kwargs)
+    return settled_within(mesh, flat, simulate(mesh, flat, **simulate_kwargs), rel_tol)
+
+
+def settled_within(mesh, flat, sim, rel_tol):
+    """Check ``sim``, the layout ``flat`` of ``mesh`` settled, rests within ``rel_tol``
+    of the longest diameter (mean displacement). Returns (flat, sim, relative mean
+    displacement)."""
     rel = sim.mean_displacement_mm / longest_diameter(mesh)
     assert rel < rel_tol, (rel, sim.max_displacement_mm, sim.iterations, sim.converged)
     return flat, sim, rel
 
 
+@functools.lru_cache(maxsize=None)
+def dome_flat():
+    """The reference dome and its layout, once for the tests that share them."""
+    mesh = reference_mesh("dome")
+    return mesh, flatten(mesh)
+
+
+@functools.lru_cache(maxsize=None)
+def dome_settled():
+    """The reference dome's layout settled with the default settings: SimResult."""
+    return simulate(*dome_flat())
+
+
 def test_dome_returns_to_target():
-    flat, sim, rel = returns_to_target(reference_mesh("dome"), rel_tol=0.01, iterations=1000)
+    mesh, flat = dome_flat()
+    flat, sim, rel = settled_within(mesh, flat, simulate(mesh, flat, iterations=1000), 0.01)
     assert isinstance(sim, SimResult) and sim.converged
     assert sim.vertices.shape == flat.xy.shape[:1] + (3,)
     assert sim.max_displacement_mm >= sim.mean_displacement_mm > 0
@@ -57,9 +79,8 @@ def test_exact_cap_layout_rises_into_the_cap():
 def test_sheet_that_pops_down_is_mirrored():
     """Started with a downward bump the dome settles upside down; its mirror
     image (what the upward start reaches) is kept and reported."""
-    mesh = reference_mesh("dome")
-    flat = flatten(mesh)
-    up = simulate(mesh, flat)
+    mesh, flat = dome_flat()
+    up = dome_settled()
     down = simulate(mesh, flat, pop=-0.15)
     assert down.mirrored and not up.mirrored
     # every constraint is reflection-invariant: the same shape, mirrored
@@ -67,9 +88,8 @@ def test_sheet_that_pops_down_is_mirrored():
 
 
 def test_clamping_sigma_to_printable_range_is_counted_and_costs_accuracy():
-    mesh = reference_mesh("dome")
-    flat = flatten(mesh)
-    free = simulate(mesh, flat)
+    mesh, flat = dome_flat()
+    free = dome_settled()
     clamped = simulate(mesh, flat, s_min=0.0, s_max=0.02)
     assert free.clamped_edges == 0
     assert clamped.clamped_edges == int(np.count_nonzero((flat.sigma < 0) | (flat.sigma > 0.02)))
@@ -105,9 +125,18 @@ LOBED = {
 EQUILIBRIUM = {"iterations": 1000}
 
 
+@functools.lru_cache(maxsize=None)
+def lobed_at_rest(name):
+    """:data:`LOBED` ``name`` meshed, flattened and settled to equilibrium, once for the
+    tests that share it: (mesh, flat, SimResult)."""
+    mesh = LOBED[name]()
+    flat = flatten(mesh)
+    return mesh, flat, simulate(mesh, flat, **EQUILIBRIUM)
+
+
 @pytest.mark.parametrize("name", sorted(LOBED))
 def test_lobed_shapes_return_close_to_target(name):
-    _, sim, _ = returns_to_target(LOBED[name](), rel_tol=0.03, **EQUILIBRIUM)
+    _, sim, _ = settled_within(*lobed_at_rest(name), rel_tol=0.03)
     assert sim.converged
 
 
@@ -115,7 +144,7 @@ def test_lobed_shapes_return_close_to_target(name):
                           "diameter at equilibrium, see LOBED", strict=True)
 @pytest.mark.parametrize("name", sorted(LOBED))
 def test_lobed_shapes_return_within_one_percent(name):
-    returns_to_target(LOBED[name](), rel_tol=0.01, **EQUILIBRIUM)
+    settled_within(*lobed_at_rest(name), rel_tol=0.01)
 
 
 def test_reported_shape_is_the_equilibrium_not_a_pause():
@@ -125,10 +154,8 @@ def test_reported_shape_is_the_equilibrium_not_a_pause():
     diameter of the reported figure. Measured 1.63 % and 1.61 %; the
     Anderson-accelerated PD this replaced stopped at 0.86 % (one small step)
     and was still moving at 1.64 % after 1,500 iterations."""
-    mesh = LOBED["two_peaks"]()
-    flat = flatten(mesh)
+    mesh, flat, sim = lobed_at_rest("two_peaks")     # settled with iterations=1000
     d = longest_diameter(mesh)
-    sim = simulate(mesh, flat, iterations=1000)
     settled = simulate(mesh, flat, iterations=5000, rest_tol=2e-6)
     assert sim.converged and settled.converged
     assert abs(sim.mean_displacement_mm - settled.mean_displacement_mm) < 0.001 * d, (
