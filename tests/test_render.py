@@ -339,3 +339,21 @@ def test_pictures_count_invalid_edges_by_the_reports_criterion():
 def test_counts_in_titles_read_as_words():
     from pipeline.pictures.figure import counted
     assert [counted(n, "trace") for n in (0, 1, 2)] == ["0 traces", "1 trace", "2 traces"]
+
+
+def test_small_parts_are_drawn_no_finer_than_the_paths_need():
+    """A 15 mm part's pictures stop at 16 px/mm (a 0.5 mm path 8 px wide) instead of
+    stretching it to 1400 px, and its preview panels narrow with it; a 175 mm part keeps
+    1400 px on its longest side and 760 px panels."""
+    sigma = [np.array([0.1])]
+    for size, px_per_mm in ((15.0, render.MAX_PX_PER_MM), (175.0, 1400 / 175.0)):
+        img = render.toolpath_image([np.array([[0.0, 0.0], [size, size]])], sigma,
+                                    0.0, 0.343, 0.5)
+        assert img.info["px_per_mm"] == pytest.approx(px_per_mm)
+    widths = []
+    for size in (15.0, 175.0):
+        v, f = grid_mesh(shapes.dome(diameter_mm=size, height_mm=size / 5,
+                                     pixel_mm=size / 40))
+        img = render.preview_image(v, f, v, np.zeros(len(v)), contour_mm=None)
+        widths.append(img.width)
+    assert widths[0] < 0.75 * widths[1]

@@ -46,10 +46,20 @@ class _Plan:
         return img
 
 
+# Pictures of small parts are drawn no finer than this: a 0.5 mm path is then 8 px wide,
+# finer shows nothing more of it, and the drawing time grows with the pixels (a 15 mm
+# dome's four pictures took 2.8 s at 1400 px on the longest side, most of its plan).
+MAX_PX_PER_MM = 16.0
+# The preview's panels: this fine up to 760 px each, and at least 480 px for their labels.
+PREVIEW_PX_PER_MM = 8.0
+PREVIEW_PANEL_PX = (480, 760)
+
+
 def _scale(extent_mm, px_per_mm, max_px, long_px=1400):
-    """px/mm: the requested one (or one giving ``long_px`` on the longest side), capped by ``max_px``."""
+    """px/mm: the requested one (or one giving ``long_px`` on the longest side, at most
+    ``MAX_PX_PER_MM``), capped by ``max_px``."""
     ext = max(float(extent_mm), 1e-6)
-    s = px_per_mm if px_per_mm else long_px / ext
+    s = px_per_mm if px_per_mm else min(long_px / ext, MAX_PX_PER_MM)
     return min(s, max_px / ext)
 
 
@@ -303,7 +313,7 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
 
 
 def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, title="",
-                  panel_px=(760, None), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None,
+                  panel_px=(None, None), elevation_deg=35.0, azimuth_deg=-30.0, vmax_mm=None,
                   contour_mm="auto", inverted_faces=None, given_vertices=None,
                   target_label="target"):
     """Target and simulated shape side by side in one oblique view, error as colour; with
@@ -318,7 +328,8 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     displacement_mm : (n,) float
         Distance of each simulated vertex from its target, mm.
     title : str
-    panel_px : (width, height) of each of the two views; height None fits the shape.
+    panel_px : (width, height) of each view; width None: ``PREVIEW_PX_PER_MM`` across the
+        target within ``PREVIEW_PANEL_PX``; height None fits the shape.
     elevation_deg, azimuth_deg : view direction (35 degrees above the horizon by default).
     vmax_mm : float, optional
         Top of the colour scale; default a round number above the maximum.
@@ -350,6 +361,9 @@ def preview_image(target_vertices, faces, simulated_vertices, displacement_mm, t
     gv = None if given_vertices is None else np.asarray(given_vertices, np.float64)
     shown = [tv, sv] if gv is None else [gv, sv, tv]
     pw, ph = panel_px
+    if pw is None:
+        across = float(np.ptp(tv[:, :2], axis=0).max()) if len(tv) else 0.0
+        pw = int(np.clip(PREVIEW_PX_PER_MM * across, *PREVIEW_PANEL_PX))
     if ph is None:  # fit the width, then take the height the shape needs (within reason)
         (_, _), s = view_fit(shown, (pw, 10 * pw), elevation_deg, azimuth_deg)
         cam = camera_basis(elevation_deg, azimuth_deg)
