@@ -14,6 +14,13 @@ from meshes import reference_mesh, spherical_cap
 RNG = np.random.default_rng(12345)
 
 
+@pytest.fixture(autouse=True)
+def _fresh_rng():
+    """Each test draws the same numbers whichever tests ran before it in its worker."""
+    global RNG
+    RNG = np.random.default_rng(12345)
+
+
 def _angle(U0, U1, planar):
     dot = np.einsum("ij,ij->j", U0, U1)
     if planar:

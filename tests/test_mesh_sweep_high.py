@@ -1,7 +1,7 @@
 """The isoline mesher over seeded random terrains, seeds 100-199 (0-99: test_mesh_sweep_low.py).
 
-The 200 seeds are two modules so that two test workers (``--dist loadfile``: a module
-runs on one) share them; at least 150 of the 200 mesh, 75 in each half."""
+The 200 seeds are two tests so that the two test workers share them; at least 150 of
+the 200 mesh, 75 in each half."""
 
 import pytest
 

@@ -11,7 +11,6 @@ from pipeline.simulation.forward import SimResult, align, simulate
 from meshes import (isoline_mesh, longest_diameter, reference_mesh, spherical_cap,
                     starfish_like, two_peaks)
 
-RNG = np.random.default_rng(7)
 
 
 def returns_to_target(mesh, rel_tol=0.01, **simulate_kwargs):
@@ -97,8 +96,9 @@ def test_clamping_sigma_to_printable_range_is_counted_and_costs_accuracy():
 
 
 def test_align_undoes_a_rigid_motion():
-    T = RNG.normal(size=(200, 3)) * [40, 30, 10]
-    q, _ = np.linalg.qr(RNG.normal(size=(3, 3)))
+    rng = np.random.default_rng(7)
+    T = rng.normal(size=(200, 3)) * [40, 30, 10]
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     R = q * np.sign(np.linalg.det(q))  # a rotation
     P = T @ R.T + [5.0, -3.0, 12.0]
     aligned, d = align(P, T)
