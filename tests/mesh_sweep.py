@@ -1,5 +1,5 @@
 """The isoline mesher over seeded random terrains (the regression net of
-``test_mesh_sweep_*``; split in two modules so two workers share the 200 seeds)."""
+``test_mesh_sweep_*``; split in four tests of 50 so two workers share the 200 seeds)."""
 
 import numpy as np
 
