@@ -112,3 +112,13 @@ def test_small_rings_between_rings_on_both_sides_are_bridged_outward():
     rings = [_ring(r, k=int(80 * r)) for r in (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)]
     merged, rungs = bridge_rings(rings, PW)
     assert len(merged) == 1 and merged[0][2] and len(rungs) == 2 * (len(rings) - 1)
+
+
+def test_a_piece_of_no_length_keeps_one_shrink():
+    """Two bridges' stretches can meet at a point of a path, where round-off puts the
+    piece between them a hair below zero length: it still has one shrink per segment."""
+    from pipeline.paths.ends import _cut
+    p = np.array([[0.0, 0.0], [2.0, 0.0], [4.0, 0.0]])
+    at = np.array([0.0, 2.0, 4.0])
+    piece, sg, closed = _cut(p, at, np.array([0.1, 0.3]), 2.0, 2.0 - 3e-13, p[1], p[1])
+    assert len(piece) == 2 and len(sg) == 1 and not closed

@@ -100,4 +100,7 @@ def _cut(p, at, sg, start, stop, first, last):
     never stand in the middle, however the sums round."""
     lo = max(int(np.searchsorted(at, start, side="right")), 1)
     hi = min(int(np.searchsorted(at, stop, side="left")), len(p) - 1)
-    return np.vstack([first, p[lo:hi], last]), sg[lo - 1:hi], False
+    # A part inside one segment (a bridge's piece between two gaps on a segment longer
+    # than the piece) is that segment's stretch: two points, the segment's value.
+    hi = max(hi, lo - 1)
+    return np.vstack([first, p[lo:hi], last]), sg[lo - 1:max(hi, lo)], False
