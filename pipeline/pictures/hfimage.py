@@ -86,7 +86,7 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     # 1 px ramp: smooth diagonals instead of sample-sized stair steps.
     mask = Image.fromarray(valid.astype(np.float32), "F").resize((W, H), Image.BILINEAR)
     a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)[..., None]
-    canvas = np.clip(rgb, 0, 255) * a + WHITE * (1 - a)
+    canvas = (np.clip(rgb, 0, 255) * a + WHITE * (1 - a)).astype(np.float32)
 
     moved = None
     if removed_mm is not None:
@@ -99,15 +99,16 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)
     if len(levels):
         gen = contourpy.contour_generator(z=np.ma.masked_invalid(z), line_type="SeparateCode")
-        for k, lev in enumerate(levels):
+        q0, q1, width = [], [], []
+        for lev in levels:
             segs = [line for line in gen.lines(lev)[0] if len(line) > 1]
-            if not segs:
-                continue
-            q0 = np.concatenate([s[:-1] for s in segs])
-            q1 = np.concatenate([s[1:] for s in segs])
             bold = abs(lev / step / 5 - round(lev / step / 5)) < 1e-6
-            draw_segments(canvas, (q0 + 0.5) * f, (q1 + 0.5) * f, (70, 52, 40),
-                          1.5 if bold else 0.8)
+            q0 += [s[:-1] for s in segs]
+            q1 += [s[1:] for s in segs]
+            width += [np.full(len(s) - 1, 1.5 if bold else 0.8) for s in segs]
+        if q0:  # all levels in one call: each call costs a pass over the whole canvas
+            draw_segments(canvas, (np.concatenate(q0) + 0.5) * f, (np.concatenate(q1) + 0.5) * f,
+                          (70, 52, 40), np.concatenate(width))
     if moved is not None and (moved > removed_at_mm).any():
         gen = contourpy.contour_generator(z=moved, line_type="SeparateCode")
         segs = [line for line in gen.lines(removed_at_mm)[0] if len(line) > 1]

@@ -14,8 +14,9 @@ packed int64 key (depth or coverage in the high bits, primitive id in the low
 
 import numpy as np
 
-# Candidate pixels evaluated per chunk: bounds the temporaries to ~100 MB.
-_CHUNK = 1 << 21
+# Candidate pixels evaluated per chunk: the temporaries (a few MB) stay in cache,
+# which is faster than fewer, larger chunks.
+_CHUNK = 1 << 17
 # Boxes larger than this many pixels are cut into row bands, so one huge
 # triangle does not produce a single enormous template.
 _BAND = 1 << 14
@@ -106,6 +107,65 @@ def _edge_functions(p):
     return a, b, c
 
 
+def _plane(a, b, c, xc, yc, dx, dy):
+    """``a x + b y + c`` at the template pixels of each box: (c,) coefficients and box
+    corners (float64), (k,) offsets (float32) -> (c, k) float32. The large per-box term
+    is summed in float64 so float32 only carries the small offsets."""
+    base = (a * xc + b * yc + c).astype(np.float32)
+    return base[:, None] + a.astype(np.float32)[:, None] * dx + b.astype(np.float32)[:, None] * dy
+
+
+def _spans(a, b, c, live, x0, x1, y0, y1):
+    """The pixel centres inside each triangle, as one column span per (face, row).
+
+    a, b, c : (m, 3) edge functions (:func:`_edge_functions`); live : faces to draw;
+    x0..y1 : (m,) their clipped pixel boxes. Returns (face, row, first, last column),
+    each (r,) int64, empty spans dropped. A centre on a shared edge belongs to both
+    neighbours (the tolerance keeps rounding from opening cracks); depth settles ties.
+    """
+    # Edge k holds where a x + b y + c >= eps: x >= or <= (eps - c - b y) / a by the sign
+    # of a, a line in y per face and edge (a horizontal edge, a = 0, only bounds the
+    # rows, which the box already does).
+    eps = -1e-9
+    al, bl, cl = a[live], b[live], c[live]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope, icpt = -bl / al, (eps - cl) / al
+    nrow = y1[live] - y0[live] + 1
+    y = np.repeat(y0[live] - np.cumsum(nrow) + nrow, nrow) + np.arange(int(nrow.sum()))
+    yc = y + 0.5
+    lo = np.full(len(y), -np.inf)
+    hi = np.full(len(y), np.inf)
+    # Per edge and side, one contiguous column repeated down the face's rows: far faster
+    # than gathering (m, k) rows per span.
+    for k in range(3):
+        for side, acc, none, pick in ((al[:, k] > 0, lo, -np.inf, np.maximum),
+                                      (al[:, k] < 0, hi, np.inf, np.minimum)):
+            bound = (np.repeat(np.where(side, slope[:, k], 0.0), nrow) * yc
+                     + np.repeat(np.where(side, icpt[:, k], none), nrow))
+            pick(acc, bound, out=acc)
+    f = np.repeat(live, nrow)
+    xa = np.maximum(np.ceil(lo - 0.5), np.repeat(x0[live], nrow)).astype(np.int64)
+    xb = np.minimum(np.floor(hi - 0.5), np.repeat(x1[live], nrow)).astype(np.int64)
+    keep = xb >= xa
+    return f[keep], y[keep], xa[keep], xb[keep]
+
+
+def _span_chunks(*spans):
+    """Split spans (as from :func:`_spans`) into runs of about ``_CHUNK`` pixels."""
+    n = spans[3] - spans[2] + 1
+    edges = np.searchsorted(np.cumsum(n), np.arange(_CHUNK, n.sum(), _CHUNK))
+    for lo, hi in zip(np.r_[0, edges], np.r_[edges, len(n)]):
+        if hi > lo:
+            yield tuple(q[lo:hi] for q in spans)
+
+
+def _span_pixels(row_start, xa, xb):
+    """Every pixel of the spans: flat index (row_start + column) and column, each (p,) int64."""
+    n = xb - xa + 1
+    x = np.arange(int(n.sum()), dtype=np.int64) + np.repeat(xa - np.cumsum(n) + n, n)
+    return np.repeat(row_start, n) + x, x
+
+
 def rasterize_triangles(xy, depth, faces, shape):
     """Z-buffered coverage: which face is visible at each pixel.
 
@@ -143,25 +203,23 @@ def rasterize_triangles(xy, depth, faces, shape):
     live = np.flatnonzero(ok & (x1 >= x0) & (y1 >= y0))
     if len(live) == 0:
         return face_id.reshape(shape)
-    # Depth as a plane over the screen: z = az x + bz y + cz per face.
-    az = a[:, 0] * z[:, 0] + a[:, 1] * z[:, 1] + a[:, 2] * z[:, 2]
-    bz = b[:, 0] * z[:, 0] + b[:, 1] * z[:, 1] + b[:, 2] * z[:, 2]
-    cz = c[:, 0] * z[:, 0] + c[:, 1] * z[:, 1] + c[:, 2] * z[:, 2]
+    # Depth as a plane over the screen: z = az x + bz y + cz per face, scaled to the
+    # 31 bits it takes in the key.
     zmin, zmax = z[live].min(), z[live].max()
+    flat = not zmax > zmin  # one depth (a 2-D layout): the lowest face index wins
     zscale = (2 ** 31 - 2) / max(zmax - zmin, 1e-12)
-    # Shared edges belong to both neighbours (no cracks); the depth test settles ties.
-    eps = -1e-9
+    az, bz, cz = ((q * z).sum(1) * zscale for q in (a, b, c))
+    cz -= zmin * zscale
     best = np.full(height * width, np.iinfo(np.int64).max, dtype=np.int64)
-    for it, bx, by, dx, dy, valid in _candidates(x0[live], x1[live], y0[live], y1[live]):
-        f = live[it]
-        xc, yc = bx + 0.5, by + 0.5
-        w0 = (a[f, 0] * xc + b[f, 0] * yc + c[f, 0])[:, None] + a[f, 0, None] * dx + b[f, 0, None] * dy
-        w1 = (a[f, 1] * xc + b[f, 1] * yc + c[f, 1])[:, None] + a[f, 1, None] * dx + b[f, 1, None] * dy
-        valid &= (w0 >= eps) & (w1 >= eps) & (w0 + w1 <= 1 - eps)
-        i, k = np.nonzero(valid)
-        zq = (az[f[i]] * (xc[i] + dx[k]) + bz[f[i]] * (yc[i] + dy[k]) + (cz[f[i]] - zmin)) * zscale
-        key = (np.clip(zq, 0, 2 ** 31 - 2).astype(np.int64) << 32) | f[i]
-        np.minimum.at(best, (by[i] + dy[k]) * width + bx[i] + dx[k], key)
+    f, y, xa, xb = _spans(a, b, c, live, x0, x1, y0, y1)
+    for f, y, xa, xb in _span_chunks(f, y, xa, xb):
+        pix, x = _span_pixels(y * width, xa, xb)
+        key = np.repeat(f, xb - xa + 1)
+        if not flat:
+            zrow = bz[f] * (y + 0.5) + cz[f]
+            zq = np.repeat(zrow, xb - xa + 1) + np.repeat(az[f], xb - xa + 1) * (x + 0.5)
+            key |= np.clip(zq, 0, 2 ** 31 - 2).astype(np.int64) << 32
+        np.minimum.at(best, pix, key)
     hit = best != np.iinfo(np.int64).max
     face_id[hit] = (best[hit] & 0xFFFFFFFF).astype(np.int32)
     return face_id.reshape(shape)
@@ -193,6 +251,57 @@ def pixel_barycentrics(xy, faces, face_id):
     w = np.clip(np.nan_to_num(w, nan=1.0 / 3), 0.0, 1.0)
     w /= np.maximum(w.sum(1, keepdims=True), 1e-12)
     return rows, cols, face, w
+
+
+def face_planes(xy, faces, values):
+    """Per-vertex values as linear functions of the pixel position within each face.
+
+    Parameters
+    ----------
+    xy : (n, 2) float, pixels
+    faces : (m, 3) int
+    values : (n, k) float
+
+    Returns
+    -------
+    (m, k, 3) float32: value ``j`` at pixel (x, y) of face ``f`` is
+    ``P[f, j, 0] * x + P[f, j, 1] * y + P[f, j, 2]`` (exact inside the face, NaN rows
+    for degenerate faces). One gather per pixel then replaces the barycentric weights
+    and the three corner gathers of :func:`pixel_barycentrics`.
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    a, b, c = _edge_functions(np.asarray(xy, dtype=np.float64)[faces])
+    q = np.asarray(values, dtype=np.float64)[faces]  # (m, 3 corners, k)
+    return np.stack([np.einsum("mc,mck->mk", a, q), np.einsum("mc,mck->mk", b, q),
+                     np.einsum("mc,mck->mk", c, q)], axis=2).astype(np.float32)
+
+
+def _capsule_spans(p0, v, reach, live, x0, x1, y0, y1):
+    """Column spans per (segment, row) holding every pixel centre within ``reach`` of
+    the segment (slightly more at diagonal ends: the capsule's bounding span).
+
+    p0, v : (s, 2) start and direction (p1 - p0), pixels; reach : (s,) px; live :
+    segments to draw; x0..y1 : (s,) their clipped pixel boxes. Returns (segment, row,
+    first, last column), each (r,) int64, empty spans dropped.
+    """
+    nrow = y1[live] - y0[live] + 1
+    # A segment's rows are consecutive: repeating its values is far cheaper than gathering.
+    rep = lambda q: np.repeat(q[live], nrow)
+    g = rep(np.arange(len(p0)))
+    y = np.repeat(y0[live] - np.cumsum(nrow) + nrow, nrow) + np.arange(int(nrow.sum()))
+    # The stretch of the centre line within reach of the row, widened by reach.
+    py, vy, px, vx, rg = rep(p0[:, 1]), rep(v[:, 1]), rep(p0[:, 0]), rep(v[:, 0]), rep(reach)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = np.where(vy != 0, (y + 0.5 - rg - py) / vy, 0.0)
+        tb = np.where(vy != 0, (y + 0.5 + rg - py) / vy, 1.0)
+    xa = px + np.clip(np.minimum(ta, tb), 0.0, 1.0) * vx
+    xb = px + np.clip(np.maximum(ta, tb), 0.0, 1.0) * vx
+    lo = np.minimum(xa, xb) - rg
+    hi = np.maximum(xa, xb) + rg
+    xa = np.maximum(np.ceil(lo - 0.5), rep(x0)).astype(np.int64)
+    xb = np.minimum(np.floor(hi - 0.5), rep(x1)).astype(np.int64)
+    keep = xb >= xa
+    return g[keep], y[keep], xa[keep], xb[keep]
 
 
 def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
@@ -237,29 +346,63 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     vv = np.einsum("ij,ij->i", v, v)
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.where(vv[:, None] > 1e-12, v / vv[:, None], 0.0)
-    fade32 = np.minimum(1.0, 2 * r).astype(np.float32)
-    u32, v32, reach32 = u.astype(np.float32), v.astype(np.float32), reach.astype(np.float32)
+    fade = np.minimum(1.0, 2 * r)
     prio = np.zeros(s, np.int64) if priority is None else np.asarray(priority, np.int64)
-    best = np.full(height * width, -1, dtype=np.int64)
-    for it, bx, by, dx, dy, valid in _candidates(x0[live], x1[live], y0[live], y1[live]):
-        g = live[it]
-        ox = (bx + 0.5 - p0[g, 0]).astype(np.float32)[:, None] + dx.astype(np.float32)
-        oy = (by + 0.5 - p0[g, 1]).astype(np.float32)[:, None] + dy.astype(np.float32)
-        t = np.clip(ox * u32[g, 0, None] + oy * u32[g, 1, None], 0.0, 1.0)
-        ex = ox - t * v32[g, 0, None]
-        ey = oy - t * v32[g, 1, None]
-        cov = np.clip(reach32[g, None] - np.sqrt(ex * ex + ey * ey), 0.0, 1.0) * fade32[g, None]
-        i, k = np.nonzero(valid & (cov > 1.0 / 255))
-        cq = np.round(cov[i, k] * 65535).astype(np.int64)
-        key = (prio[g[i]] << 48) | (cq << 32) | g[i]
-        np.maximum.at(best, (by[i] + dy[k]) * width + bx[i] + dx[k], key)
+    base = (prio << 48) | np.arange(s)
+    # Per-segment values as contiguous float32 columns: the spans are short (a few px), so
+    # gathering them per span costs as much as the pixels; 2-D column gathers far more.
+    cols = {k: np.ascontiguousarray(q, dtype=np.float32) for k, q in
+            dict(qx=0.5 - p0[:, 0], qy=0.5 - p0[:, 1], ux=u[:, 0], uy=u[:, 1], vx=v[:, 0],
+                 vy=v[:, 1], reach=reach, fade=fade).items()}
+    faded = bool((fade < 1).any())
+    # Only the rows the segments reach: markers and short strokes need no full-canvas pass.
+    top = int(y0[live].min())
+    best = np.full((int(y1[live].max()) + 1 - top) * width, -1, dtype=np.int64)
+    for g, y, xa, xb in _span_chunks(*_capsule_spans(p0, v, reach, live, x0, x1, y0, y1)):
+        pix, x = _span_pixels((y - top) * width, xa, xb)
+        n = xb - xa + 1
+        rep = lambda k: np.repeat(cols[k].take(g), n)
+        # Offsets from p0 in float32 (small numbers); t the nearest point's position.
+        ox = x.astype(np.float32) + rep("qx")
+        oy = np.repeat(y.astype(np.float32) + cols["qy"].take(g), n)
+        t = np.clip(ox * rep("ux") + oy * rep("uy"), 0.0, 1.0)
+        ex = ox - t * rep("vx")
+        ey = oy - t * rep("vy")
+        cov = np.clip(rep("reach") - np.sqrt(ex * ex + ey * ey), 0.0, 1.0)
+        if faded:
+            cov *= rep("fade")
+        sel = np.flatnonzero(cov > 1.0 / 255)
+        cq = np.round(cov[sel] * 65535).astype(np.int64)
+        np.maximum.at(best, pix[sel], np.repeat(base.take(g), n)[sel] | (cq << 32))
     hit = np.flatnonzero(best >= 0)
-    g = best[hit] & 0xFFFFFFFF
-    cov = ((best[hit] >> 32) & 0xFFFF) / 65535.0
-    col = np.broadcast_to(np.asarray(colors, dtype=np.float64), (s, 3))[g]
-    flat = canvas.reshape(-1, 3)
-    flat[hit] = cov[:, None] * col + (1 - cov[:, None]) * flat[hit]
+    key = best[hit]
+    hit += top * width
+    cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype)[:, None] / 65535
+    col = np.ascontiguousarray(np.broadcast_to(np.asarray(colors, canvas.dtype), (s, 3)))
+    col = col.take(key & 0xFFFFFFFF, axis=0)
+    old = get_pixels(canvas, hit)
+    set_pixels(canvas, hit, old + cov * (col - old))
     return canvas
+
+
+def _pixel_items(canvas):
+    """(h, w, 3) C-contiguous canvas -> (h * w,) view with one opaque item per pixel:
+    gathering and scattering whole pixels as 1-D items is several times faster than
+    fancy-indexing rows of a 2-D array."""
+    if not canvas.flags.c_contiguous:
+        raise ValueError("the canvas must be C-contiguous")
+    return canvas.reshape(-1).view(np.dtype((np.void, 3 * canvas.itemsize)))
+
+
+def get_pixels(canvas, index):
+    """The colours (k, 3) of the pixels at flat ``index`` (k,) of an (h, w, 3) canvas."""
+    return _pixel_items(canvas)[index].view(canvas.dtype).reshape(-1, 3)
+
+
+def set_pixels(canvas, index, rgb):
+    """Set the pixels at flat ``index`` (k,) of an (h, w, 3) canvas to ``rgb`` (k, 3)."""
+    rgb = np.ascontiguousarray(rgb, dtype=canvas.dtype)
+    _pixel_items(canvas)[index] = rgb.view(_pixel_items(canvas).dtype).reshape(-1)
 
 
 def dash_segments(p0, p1, on_px, off_px):

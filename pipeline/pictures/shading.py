@@ -8,7 +8,7 @@ import numpy as np
 from PIL import Image, ImageFilter
 
 from pipeline.pictures.figure import INVERTED, colormap
-from pipeline.pictures.raster import pixel_barycentrics, rasterize_triangles
+from pipeline.pictures.raster import face_planes, rasterize_triangles
 
 
 def _vertex_normals(vertices, faces):
@@ -88,52 +88,102 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
     (cx, cy), s = fit
     W, H = size_px
     ss = int(supersample)
-    Ws, Hs = W * ss, H * ss
-    pxy = np.stack([Ws / 2 + (scr[:, 0] - cx) * s * ss, Hs / 2 - (scr[:, 1] - cy) * s * ss], 1)
-    fid = rasterize_triangles(pxy, scr[:, 2], faces, (Hs, Ws))
-    rows, cols, f, w = pixel_barycentrics(pxy, faces, fid)
-    vn = _vertex_normals(v, faces).astype(np.float32)
-    w = w.astype(np.float32)
-    fv = faces[f]
-    n = (w[:, 0:1] * vn[fv[:, 0]] + w[:, 1:2] * vn[fv[:, 1]] + w[:, 2:3] * vn[fv[:, 2]])
-    n /= np.maximum(np.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2 + n[:, 2] ** 2), 1e-12)[:, None]
-    # Two-sided: a normal facing away from the camera belongs to the hidden side.
-    n *= np.where(project(n, cam[2:3])[:, 0] > 0, -1.0, 1.0).astype(np.float32)[:, None]
+    pxy = np.stack([W / 2 + (scr[:, 0] - cx) * s, H / 2 - (scr[:, 1] - cy) * s], 1)
+    fid = rasterize_triangles(pxy * ss, scr[:, 2], faces, (H * ss, W * ss))
+    face, sample, cover = _pixel_faces(fid, ss)
+    rows, cols = np.nonzero(face >= 0)
+    f = face[rows, cols]
     L = _light(cam)
+    rgb, shade = _vertex_colors(v, faces, cam, L, values, vmin, vmax, cmap, base_color)
+    # Gouraud: the mesh's triangles are a few pixels across, so colours lit per vertex and
+    # interpolated per pixel look the same as lighting every pixel, at a fraction of the work.
+    attrs = [rgb[:, 0], rgb[:, 1], rgb[:, 2], v[:, 2], shade]
+    planes = face_planes(pxy, faces, np.stack(attrs[:4 if hatch is None else 5], axis=1))
+    at = planes[f]
+    x = (cols + sample[rows, cols, 0])[:, None]
+    y = (rows + sample[rows, cols, 1])[:, None]
+    val = at[:, :, 0] * x + at[:, :, 1] * y + at[:, :, 2]
+    col = val[:, :3]
+    if contour_mm:
+        # Contours from the height at the pixel centre: at the varying sample offsets
+        # thin lines would come out dotted.
+        z = val[:, 3] + at[:, 3, 0] * (cols + 0.5 - x[:, 0]) + at[:, 3, 1] * (rows + 0.5 - y[:, 0])
+        col *= (1.0 - 0.28 * _contour_ink(z, at[:, 3, :2], contour_mm))[:, None]
+    if hatch is not None:
+        # Diagonal stripes keep the shading and the error colour readable between them.
+        stripe = np.asarray(hatch, bool)[f] & ((rows + cols) // 3 % 3 == 0)
+        col[stripe] = np.asarray(INVERTED, np.float32) * (0.55 + 0.45 * val[stripe, 4:5])
+    img = np.zeros((H, W, 4), np.uint8)
+    alpha = cover[rows, cols]
+    if shadow:
+        sh = _shadow(v, faces, cam, L, (cx, cy), s, (H, W))
+        img[..., 3] = sh
+        alpha = alpha + (1.0 - alpha) * sh[rows, cols] / 255.0
+    img[rows, cols, :3] = np.clip(col + 0.5, 0, 255).astype(np.uint8)
+    img[rows, cols, 3] = np.clip(255 * alpha + 0.5, 0, 255).astype(np.uint8)
+    return Image.fromarray(img, "RGBA"), fit
+
+
+def _pixel_faces(face_id, ss):
+    """The face shown by each output pixel, where to sample it, and how much of the pixel
+    the mesh covers.
+
+    face_id : (H * ss, W * ss) int, -1 for background (the mesh rasterised at ``ss`` x).
+    Returns face (H, W) int (-1 where nothing covers it; where several faces share a
+    pixel, the first in row-major sample order), at (H, W, 2) float32: the (x, y)
+    offset within the pixel of a sample centre that face covers, and cover (H, W)
+    float32 in [0, 1], the covered share of the samples. Sampling inside the face matters on the silhouette, where a
+    face seen edge-on extrapolates to nonsense a fraction of a pixel outside it.
+    """
+    H, W = face_id.shape[0] // ss, face_id.shape[1] // ss
+    face = np.full((H, W), -1, face_id.dtype)
+    ax = np.zeros((H, W), np.float32)
+    ay = np.zeros((H, W), np.float32)
+    count = np.zeros((H, W), np.int32)
+    # One strided sub-image per sample position: element-wise work only (reductions
+    # along a short axis and masked assignments are slow in numpy).
+    for dy in range(ss):
+        for dx in range(ss):
+            sub = face_id[dy:H * ss:ss, dx:W * ss:ss]
+            hit = sub >= 0
+            count += hit
+            new = hit & (face < 0)
+            face = np.where(new, sub, face)
+            ax = np.where(new, np.float32((dx + 0.5) / ss), ax)
+            ay = np.where(new, np.float32((dy + 0.5) / ss), ay)
+    return face, np.stack([ax, ay], axis=-1), count.astype(np.float32) / (ss * ss)
+
+
+def _vertex_colors(v, faces, cam, L, values, vmin, vmax, cmap, base_color):
+    """Lit colour per vertex: Lambert key light, sky fill, Blinn-Phong highlight.
+
+    Returns rgb (n, 3) float (0-255, before clipping) and the shade factor (n,) float.
+    """
+    n = _vertex_normals(v, faces)
+    # Two-sided: a normal facing away from the camera belongs to the hidden side.
+    n *= np.where(project(n, cam[2:3])[:, 0] > 0, -1.0, 1.0)[:, None]
     Hv = L - cam[2]
     Hv /= np.linalg.norm(Hv)
     diff = np.clip(project(n, L[None])[:, 0], 0, 1)
     fill = 0.5 * (1 + n[:, 2])  # sky light: surfaces looking up get more
     spec = np.clip(project(n, Hv[None])[:, 0], 0, 1) ** 48
     if values is None:
-        base = np.asarray(base_color, np.float32)[None, :]
+        base = np.asarray(base_color, np.float64)[None, :]
     else:
-        val = (w * np.asarray(values, np.float32)[fv]).sum(1)
-        base = colormap(val, vmin, vmax, cmap).astype(np.float32)
+        base = colormap(np.asarray(values, np.float64), vmin, vmax, cmap).astype(np.float64)
     shade = 0.22 + 0.16 * fill + 0.68 * diff
-    rgb = base * shade[:, None] + 55.0 * spec[:, None]
-    if contour_mm:
-        # A contour pixel is one whose height band differs from its right or lower neighbour.
-        band = np.full((Hs + 1, Ws + 1), np.iinfo(np.int32).min, np.int32)
-        band[rows, cols] = np.floor((w * v[fv, 2].astype(np.float32)).sum(1) / contour_mm)
-        b0 = band[rows, cols]
-        right, below = band[rows, cols + 1], band[rows + 1, cols]
-        edge = ((right != b0) & (right != np.iinfo(np.int32).min)) | \
-               ((below != b0) & (below != np.iinfo(np.int32).min))
-        rgb[edge] *= 0.72
-    if hatch is not None:
-        # Diagonal stripes keep the shading and the error colour readable between them.
-        stripe = np.asarray(hatch, bool)[f] & ((rows + cols) // (3 * ss) % 3 == 0)
-        rgb[stripe] = np.asarray(INVERTED, np.float32) * (0.55 + 0.45 * shade[stripe, None])
-    img = np.zeros((Hs, Ws, 4), np.uint8)
-    if shadow:
-        img[..., 3] = _shadow(v, faces, cam, L, (cx, cy), s * ss, (Hs, Ws))
-    img[rows, cols, :3] = np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
-    img[rows, cols, 3] = 255
-    out = Image.fromarray(img, "RGBA")
-    if ss > 1:
-        out = out.reduce(ss)
-    return out, fit
+    return base * shade[:, None] + 55.0 * spec[:, None], shade
+
+
+def _contour_ink(z, grad, step, width_px=0.5):
+    """Anti-aliased contour lines every ``step`` mm: ink (k,) float32 in [0, 1].
+
+    z : (k,) heights (mm) at pixel centres; grad : (k, 2) their change per pixel (x, y).
+    The distance to the nearest level in pixels is the height difference over the slope.
+    """
+    q = z / step
+    dist = np.abs(q - np.round(q)) * step / np.maximum(np.hypot(grad[:, 0], grad[:, 1]), 1e-12)
+    return np.clip(0.5 * width_px + 0.5 - dist, 0.0, 1.0).astype(np.float32)
 
 
 def _shadow(v, faces, cam, L, center, s, shape, k=4):
