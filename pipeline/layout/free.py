@@ -34,6 +34,14 @@ FREE_BELOW = 0.05
 # up to three times (the layout, then relaid twice for the stack's shrink), and the fit's
 # last probe is the plan's own mesh.
 SYSTEMS_KEPT = 2
+# Local/global stops where its residual falls by less than this fraction over the last
+# STALL_WINDOW iterations: from there on the layout only creeps along soft modes. The
+# 175 mm dome's layout stalls after 40 of its 200 iterations, its relaid layouts after 26
+# and 11 of 60; laid so, its sheet lies within 0.007 mm of the capped one's and settles
+# within 0.002 mm of it (flatten 2.9 -> 1.7 s CPU, simulate 8.6 -> 5.6 s). A saddle's
+# residual keeps falling: it runs to the cap as before.
+STALL = 0.005
+STALL_WINDOW = 5
 _systems = OrderedDict()
 _systems_lock = threading.Lock()  # plans may run in threads side by side
 
@@ -292,26 +300,37 @@ def local_global(system, X, project_jacobians, iterations, tol):
     """Local/global iterations from the layout ``X`` ((n, 2) mm): each triangle's Jacobian
     ``J`` projected onto what it may be (``project_jacobians(J)`` -> (m, 2, 2)), then the
     layout whose Jacobians come nearest those (``system`` of :func:`global_system`),
-    until the largest vertex move is below ``tol`` mean edge lengths or ``iterations``.
+    until the largest vertex move is below ``tol`` mean edge lengths, the residual has
+    fallen by less than :data:`STALL` over the last :data:`STALL_WINDOW` iterations, or
+    ``iterations``.
     Returns (X, iterations, the area-weighted residual of the last projection, converged).
     """
     G, GtW, lu, eps, area = system
     m = len(area)
     mean_edge = float(np.sqrt(area.mean() * 4 / np.sqrt(3)))
-    it, residual, converged = 0, np.inf, False
+    it, residual, converged, history = 0, np.inf, False, []
     for it in range(1, iterations + 1):
         J = jacobians(G, X, m)
         P = project_jacobians(J)
         residual = float(np.sqrt(np.einsum("f,fij,fij->", area, J - P, J - P) / area.sum()))
+        history.append(residual)
         # G X stacks each triangle's J as two rows (columns of J^T): rhs = G^T W P^T.
         rhs = GtW @ np.transpose(P, (0, 2, 1)).reshape(2 * m, 2)
         Xn = lu.solve(rhs + eps * X)
         move = float(np.abs(Xn - X).max())
         X = Xn - Xn.mean(axis=0) + X.mean(axis=0)
-        if move < tol * mean_edge:
+        if move < tol * mean_edge or _stalled(history):
             converged = True
             break
     return X, it, residual, converged
+
+
+def _stalled(history):
+    """Whether the residuals ``history`` fell by less than :data:`STALL` of the last one
+    over the last :data:`STALL_WINDOW` iterations."""
+    if len(history) <= STALL_WINDOW:
+        return False
+    return history[-1 - STALL_WINDOW] - history[-1] < STALL * history[-1]
 
 
 def _across_strain(J, d):
