@@ -125,7 +125,9 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
     """
     # Edge k holds where a x + b y + c >= eps: x >= or <= (eps - c - b y) / a by the sign
     # of a, a line in y per face and edge (a horizontal edge, a = 0, only bounds the
-    # rows, which the box already does).
+    # rows, which the box already does). A triangle has one or two edges of each kind:
+    # taking the first and the last of each makes it always two, and per row the span
+    # is the larger of two lower bounds to the smaller of two upper ones.
     eps = -1e-9
     al, bl, cl = a[live], b[live], c[live]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -133,16 +135,14 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
     nrow = y1[live] - y0[live] + 1
     y = np.repeat(y0[live] - np.cumsum(nrow) + nrow, nrow) + np.arange(int(nrow.sum()))
     yc = y + 0.5
-    lo = np.full(len(y), -np.inf)
-    hi = np.full(len(y), np.inf)
-    # Per edge and side, one contiguous column repeated down the face's rows: far faster
-    # than gathering (m, k) rows per span.
-    for k in range(3):
-        for side, acc, none, pick in ((al[:, k] > 0, lo, -np.inf, np.maximum),
-                                      (al[:, k] < 0, hi, np.inf, np.minimum)):
-            bound = (np.repeat(np.where(side, slope[:, k], 0.0), nrow) * yc
-                     + np.repeat(np.where(side, icpt[:, k], none), nrow))
-            pick(acc, bound, out=acc)
+    rows = np.arange(len(live))
+    bounds = []
+    for side in (al > 0, al < 0):
+        for k in (np.argmax(side, axis=1), 2 - np.argmax(side[:, ::-1], axis=1)):
+            # Far faster to repeat a face's column down its rows than to gather per row.
+            bounds.append(np.repeat(slope[rows, k], nrow) * yc + np.repeat(icpt[rows, k], nrow))
+    lo = np.maximum(bounds[0], bounds[1])
+    hi = np.minimum(bounds[2], bounds[3])
     f = np.repeat(live, nrow)
     xa = np.maximum(np.ceil(lo - 0.5), np.repeat(x0[live], nrow)).astype(np.int64)
     xb = np.minimum(np.floor(hi - 0.5), np.repeat(x1[live], nrow)).astype(np.int64)
@@ -271,9 +271,12 @@ def face_planes(xy, faces, values):
     """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     a, b, c = _edge_functions(np.asarray(xy, dtype=np.float64)[faces])
-    q = np.asarray(values, dtype=np.float64)[faces]  # (m, 3 corners, k)
-    return np.stack([np.einsum("mc,mck->mk", a, q), np.einsum("mc,mck->mk", b, q),
-                     np.einsum("mc,mck->mk", c, q)], axis=2).astype(np.float32)
+    vals = np.asarray(values, dtype=np.float64)
+    q = [vals[faces[:, j]] for j in range(3)]  # (m, k) per corner
+    out = np.empty((len(faces), vals.shape[1], 3), np.float32)
+    for i, e in enumerate((a, b, c)):
+        out[:, :, i] = e[:, 0, None] * q[0] + e[:, 1, None] * q[1] + e[:, 2, None] * q[2]
+    return out
 
 
 def _capsule_spans(p0, v, reach, live, x0, x1, y0, y1):

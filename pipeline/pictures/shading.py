@@ -89,39 +89,108 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
     W, H = size_px
     ss = int(supersample)
     pxy = np.stack([W / 2 + (scr[:, 0] - cx) * s, H / 2 - (scr[:, 1] - cy) * s], 1)
-    fid = rasterize_triangles(pxy * ss, scr[:, 2], faces, (H * ss, W * ss))
-    face, sample, cover = _pixel_faces(fid, ss)
-    rows, cols = np.nonzero(face >= 0)
-    f = face[rows, cols]
+    face, sample, cover = _coverage(pxy, scr[:, 2], faces, (H, W), ss)
+    idx = np.flatnonzero(face >= 0)  # flat pixel index: 1-D gathers are the fast ones
+    rows, cols = np.divmod(idx, W)
+    f = face.reshape(-1)[idx]
     L = _light(cam)
     rgb, shade = _vertex_colors(v, faces, cam, L, values, vmin, vmax, cmap, base_color)
     # Gouraud: the mesh's triangles are a few pixels across, so colours lit per vertex and
     # interpolated per pixel look the same as lighting every pixel, at a fraction of the work.
     attrs = [rgb[:, 0], rgb[:, 1], rgb[:, 2], v[:, 2], shade]
     planes = face_planes(pxy, faces, np.stack(attrs[:4 if hatch is None else 5], axis=1))
-    at = planes[f]
-    x = (cols + sample[rows, cols, 0])[:, None]
-    y = (rows + sample[rows, cols, 1])[:, None]
+    at = planes.take(f, axis=0)
+    off = sample.reshape(-1, 2).take(idx, axis=0)
+    x = (cols + off[:, 0])[:, None]
+    y = (rows + off[:, 1])[:, None]
     val = at[:, :, 0] * x + at[:, :, 1] * y + at[:, :, 2]
     col = val[:, :3]
     if contour_mm:
         # Contours from the height at the pixel centre: at the varying sample offsets
         # thin lines would come out dotted.
-        z = val[:, 3] + at[:, 3, 0] * (cols + 0.5 - x[:, 0]) + at[:, 3, 1] * (rows + 0.5 - y[:, 0])
+        z = val[:, 3] + at[:, 3, 0] * (0.5 - off[:, 0]) + at[:, 3, 1] * (0.5 - off[:, 1])
         col *= (1.0 - 0.28 * _contour_ink(z, at[:, 3, :2], contour_mm))[:, None]
     if hatch is not None:
         # Diagonal stripes keep the shading and the error colour readable between them.
         stripe = np.asarray(hatch, bool)[f] & ((rows + cols) // 3 % 3 == 0)
         col[stripe] = np.asarray(INVERTED, np.float32) * (0.55 + 0.45 * val[stripe, 4:5])
-    img = np.zeros((H, W, 4), np.uint8)
-    alpha = cover[rows, cols]
+    img = np.zeros((H * W, 4), np.uint8)
+    alpha = cover.reshape(-1)[idx]
     if shadow:
-        sh = _shadow(v, faces, cam, L, (cx, cy), s, (H, W))
-        img[..., 3] = sh
-        alpha = alpha + (1.0 - alpha) * sh[rows, cols] / 255.0
-    img[rows, cols, :3] = np.clip(col + 0.5, 0, 255).astype(np.uint8)
-    img[rows, cols, 3] = np.clip(255 * alpha + 0.5, 0, 255).astype(np.uint8)
-    return Image.fromarray(img, "RGBA"), fit
+        sh = _shadow(v, faces, cam, L, (cx, cy), s, (H, W)).reshape(-1)
+        img[:, 3] = sh
+        alpha = alpha + (1.0 - alpha) * sh[idx] * np.float32(1 / 255)
+    px = np.empty((len(idx), 4), np.uint8)
+    px[:, :3] = np.clip(col + 0.5, 0, 255)
+    px[:, 3] = np.clip(255 * alpha + 0.5, 0, 255)
+    img.view(np.uint32)[idx, 0] = px.view(np.uint32)[:, 0]  # whole RGBA pixels as 1-D items
+    return Image.fromarray(img.reshape(H, W, 4), "RGBA"), fit
+
+
+def _coverage(pxy, depth, faces, shape, ss):
+    """Which face each pixel shows, where to sample it, and how much of it is covered.
+
+    pxy : (n, 2) px; depth : (n,); faces : (m, 3); shape : (H, W); ss : samples per
+    pixel side. Returns as :func:`_pixel_faces`. Inside the silhouette a pixel is covered
+    or not, so one sample at its centre decides; only the pixels along the silhouette
+    (and the faces reaching them) are rasterised again at ``ss`` x for their coverage:
+    a fraction of the work of rasterising the whole mesh at ``ss`` x.
+    """
+    H, W = shape
+    fid = rasterize_triangles(pxy, depth, faces, shape)
+    covered = fid >= 0
+    sample = np.full((H, W, 2), 0.5, np.float32)
+    if ss == 1 or not covered.any():
+        return fid, sample, covered.astype(np.float32)
+    band = _silhouette_band(covered)
+    near = np.flatnonzero(_faces_reaching(pxy, faces, band))
+    fid2 = rasterize_triangles(pxy * ss, depth, faces[near], (H * ss, W * ss))
+    r, c = np.nonzero(band)
+    sub = fid2.reshape(H, ss, W, ss)[r, :, c, :].reshape(len(r), ss * ss)
+    hit = sub >= 0
+    first = np.argmax(hit, axis=1)
+    cover = covered.astype(np.float32)
+    cover[r, c] = hit.sum(axis=1) / np.float32(ss * ss)
+    # A band pixel whose centre misses the mesh shows the face of its first covered sample.
+    miss = ~covered[r, c] & hit.any(axis=1)
+    r, c, first = r[miss], c[miss], first[miss]
+    fid[r, c] = near[sub[miss, first]]
+    sample[r, c, 0] = (first % ss + 0.5) / ss
+    sample[r, c, 1] = (first // ss + 0.5) / ss
+    return fid, sample, cover
+
+
+def _silhouette_band(covered):
+    """Pixels (H, W) bool with both covered and uncovered pixels among their 3 x 3."""
+    pad = np.pad(covered, 1)
+    H, W = covered.shape
+    any_ = np.zeros_like(covered)
+    all_ = np.ones_like(covered)
+    for dy in range(3):
+        for dx in range(3):
+            q = pad[dy:dy + H, dx:dx + W]
+            any_ |= q
+            all_ &= q
+    return any_ & ~all_
+
+
+def _faces_reaching(pxy, faces, mask):
+    """(m,) bool: faces whose pixel box overlaps a pixel of ``mask`` (H, W) bool, by a
+    summed-area table (one lookup per face)."""
+    H, W = mask.shape
+    sat = np.zeros((H + 1, W + 1), np.int32)
+    sat[1:, 1:] = mask.cumsum(0, dtype=np.int32).cumsum(1, dtype=np.int32)
+    box = []
+    for k in range(2):
+        q = pxy[:, k][faces]  # (m, 3); NaN corners give an empty box
+        lo = np.floor(np.minimum(np.minimum(q[:, 0], q[:, 1]), q[:, 2]))
+        hi = np.floor(np.maximum(np.maximum(q[:, 0], q[:, 1]), q[:, 2])) + 1
+        with np.errstate(invalid="ignore"):
+            box += [np.clip(np.nan_to_num(lo, nan=0.0), 0, mask.shape[1 - k]).astype(np.int64),
+                    np.clip(np.nan_to_num(hi, nan=0.0), 0, mask.shape[1 - k]).astype(np.int64)]
+    x0, x1, y0, y1 = box
+    n = sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0]
+    return (n > 0) & (x1 > x0) & (y1 > y0)
 
 
 def _pixel_faces(face_id, ss):
