@@ -3,76 +3,21 @@
 Pixel coordinates: ``x`` = column, ``y`` = row (row 0 at the top); pixel (row i, col j)
 covers ``[j, j+1) x [i, i+1)`` and is sampled at its centre ``(j + 0.5, i + 0.5)``.
 
-Both primitives work the same way: every primitive's clipped bounding box is
-enumerated as candidate pixels, primitives with the same (rounded) box size share
-one offset template so the per-pixel tests are plain array arithmetic, and the
-winner per pixel is chosen with one ``np.minimum.at`` / ``np.maximum.at`` over a
-packed int64 key (depth or coverage in the high bits, primitive id in the low
-32 bits). No Python loop runs over primitives; the loops run over box-size groups
-(a few dozen) and memory chunks.
+Both primitives work the same way: each is cut into one column span per pixel row it
+reaches (exact for triangles, the bounding span for a segment's capsule), the spans are
+expanded into pixels in chunks, and the winner per pixel is chosen with one
+``np.minimum.at`` / ``np.maximum.at`` over a packed int64 key (depth or coverage in the
+high bits, primitive id in the low 32 bits). Per-primitive values reach the rows and
+pixels by ``np.repeat`` (a primitive's rows and pixels are consecutive), which is far
+cheaper than gathering them. No Python loop runs over primitives; the loops run over
+memory chunks.
 """
 
 import numpy as np
 
-# Candidate pixels evaluated per chunk: the temporaries (a few MB) stay in cache,
-# which is faster than fewer, larger chunks.
+# Pixels evaluated per chunk: the temporaries (a few MB) stay in cache, which is faster
+# than fewer, larger chunks.
 _CHUNK = 1 << 17
-# Boxes larger than this many pixels are cut into row bands, so one huge
-# triangle does not produce a single enormous template.
-_BAND = 1 << 14
-
-
-def _round_up(n):
-    """Round box sizes up a ladder of four steps per octave above 8 (<= 25 % waste),
-    so boxes fall into few groups and the per-group overhead stays small."""
-    n = np.asarray(n, dtype=np.int64)
-    e = np.floor(np.log2(np.maximum(n, 2) - 1)).astype(np.int64) - 2
-    step = np.left_shift(1, np.maximum(e, 0))
-    return np.where(n <= 8, n, -(-n // step) * step)
-
-
-def _split_bands(x0, x1, y0, y1):
-    """Cut boxes with more than ``_BAND`` pixels into row bands.
-
-    Returns (item, x0, x1, y0, y1) with ``item`` the index of the original box.
-    """
-    bw = x1 - x0 + 1
-    bh = y1 - y0 + 1
-    rows = np.maximum(1, _BAND // np.maximum(bw, 1))
-    nb = -(-bh // rows)
-    item = np.repeat(np.arange(len(x0)), nb)
-    k = np.arange(len(item)) - np.repeat(np.cumsum(nb) - nb, nb)
-    yb0 = y0[item] + k * rows[item]
-    yb1 = np.minimum(yb0 + rows[item] - 1, y1[item])
-    return item, x0[item], x1[item], yb0, yb1
-
-
-def _candidates(x0, x1, y0, y1):
-    """Yield chunks of candidate pixels, boxes of one (rounded) size at a time.
-
-    Yields (item, x0, y0, dx, dy, valid): ``item`` (c,) indexes the boxes, ``x0``,
-    ``y0`` (c,) are their top-left pixels, ``dx``, ``dy`` (k,) the shared template
-    of offsets and ``valid`` (c, k) bool is False where the template (rounded up)
-    reaches past a box. Pixel of candidate (i, j): column x0[i] + dx[j], row y0[i] + dy[j].
-    """
-    item, x0, x1, y0, y1 = _split_bands(x0, x1, y0, y1)
-    bw, bh = x1 - x0 + 1, y1 - y0 + 1
-    rw, rh = _round_up(bw), _round_up(bh)
-    key = rw * (1 << 20) + rh
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    starts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
-    ends = np.r_[starts[1:], len(ks)]
-    for s, e in zip(starts, ends):
-        w, h = int(ks[s] >> 20), int(ks[s] & ((1 << 20) - 1))
-        dy, dx = np.divmod(np.arange(w * h, dtype=np.int64), w)
-        per = max(1, _CHUNK // (w * h))
-        for c in range(s, e, per):
-            sel = order[c:min(e, c + per)]
-            valid = np.ones((len(sel), w * h), bool)
-            if w * h > 1:
-                valid = (dx < bw[sel, None]) & (dy < bh[sel, None])
-            yield item[sel], x0[sel], y0[sel], dx, dy, valid
 
 
 def _boxes(lo_x, hi_x, lo_y, hi_y, width, height):
@@ -105,14 +50,6 @@ def _edge_functions(p):
     b = np.stack([x2 - x1, x0 - x2, x1 - x0], axis=1) * inv
     c = np.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], axis=1) * inv
     return a, b, c
-
-
-def _plane(a, b, c, xc, yc, dx, dy):
-    """``a x + b y + c`` at the template pixels of each box: (c,) coefficients and box
-    corners (float64), (k,) offsets (float32) -> (c, k) float32. The large per-box term
-    is summed in float64 so float32 only carries the small offsets."""
-    base = (a * xc + b * yc + c).astype(np.float32)
-    return base[:, None] + a.astype(np.float32)[:, None] * dx + b.astype(np.float32)[:, None] * dy
 
 
 def _spans(a, b, c, live, x0, x1, y0, y1):
@@ -318,8 +255,8 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
 
     Parameters
     ----------
-    canvas : (height, width, 3) float
-        Modified in place (values 0-255).
+    canvas : (height, width, 3) float, C-contiguous
+        Modified in place (values 0-255); float32 halves the memory traffic.
     p0, p1 : (s, 2) float, pixels
         Segment end points (x = column, y = row).
     colors : (s, 3) or (3,) float/uint8

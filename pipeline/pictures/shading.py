@@ -1,5 +1,6 @@
 """Shaded 3-D views of triangle meshes (numpy + Pillow): orthographic camera, z-buffer,
-per-pixel normals, Lambert + Blinn-Phong light, soft ground shadow, height contours.
+Lambert + Blinn-Phong light per vertex interpolated per pixel, anti-aliased silhouettes,
+soft ground shadow, height contours.
 
 Used by :func:`pipeline.pictures.render.preview_image`; usable on its own for thumbnails.
 """
@@ -52,7 +53,7 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
                 base_color=(178, 188, 204), size_px=(800, 600), elevation_deg=35.0,
                 azimuth_deg=-30.0, fit=None, supersample=2, shadow=True, contour_mm=None,
                 hatch=None):
-    """Shaded orthographic render of a triangle mesh (z-buffer, per-pixel normals).
+    """Shaded orthographic render of a triangle mesh (z-buffer, Gouraud shading).
 
     Parameters
     ----------
@@ -67,7 +68,8 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
         Screen placement; pass the same to several calls to render them at one
         scale. Default fits this mesh with a margin.
     supersample : int
-        Render at this factor and box-filter down (anti-aliased silhouettes).
+        Samples per pixel side along the silhouette, whose pixels are covered in part
+        (anti-aliased edges); one sample decides inside it.
     shadow : bool
         Soft shadow cast on the plane under the lowest point.
     contour_mm : float, optional
