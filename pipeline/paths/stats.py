@@ -135,44 +135,50 @@ def coverage_grid(samples, label, xy, poly, pw):
     -------
     covered, twice : (g,) bool, one per grid node inside the outline
     """
-    import shapely
-
     res = pw / 2.5
     r = pw / 2
     x0, y0 = xy.min(axis=0)
     x1, y1 = xy.max(axis=0)
     gx = np.arange(x0, x1, res) + res / 2
     gy = np.arange(y0, y1, res) + res / 2
-    X, Y = np.meshgrid(gx, gy)
-    inside = shapely.contains_xy(poly, X.ravel(), Y.ravel())
     nx, ny = len(gx), len(gy)
+    inside = _inside_grid(poly, gx, gy)
     covered = np.zeros(nx * ny, dtype=bool)
     twice = np.zeros(nx * ny, dtype=bool)
     if len(samples) == 0 or nx == 0 or ny == 0:
         return covered[inside], twice[inside]
-    cells, labels = [], []
+    # Any one path's label per node, set as the samples stamp it (the nodes and labels of
+    # all samples at once were 25 MB on the 175 mm dome).
+    owner = np.full(nx * ny, -1, dtype=np.int32)
     # In chunks of samples: the per-offset arrays of all samples at once would be
     # the plan's peak memory (70 MB on the 175 mm dome).
     for lo in range(0, len(samples), _STAMP_CHUNK):
         sl = slice(lo, lo + _STAMP_CHUNK)
-        _stamp(samples[sl], label[sl], gx, gy, res, r, covered, cells, labels)
-    cells = np.concatenate(cells)
-    labels = np.concatenate(labels)
-    # Any one path's label per node; a node also reached by another path is covered twice.
-    owner = np.full(nx * ny, -1, dtype=np.int32)
-    owner[cells] = labels
-    twice[cells[labels != owner[cells]]] = True
+        _stamp(samples[sl], label[sl], gx, gy, res, r, covered, owner, twice)
     return covered[inside], twice[inside]
+
+
+def _inside_grid(poly, gx, gy, rows=64):
+    """Which nodes of the grid ``gx`` (nx,) by ``gy`` (ny,) mm lie inside ``poly``:
+    (nx * ny,) bool, row-major. A band of ``rows`` grid rows at a time, so the nodes'
+    coordinates are never all held (13 MB on the 175 mm dome)."""
+    import shapely
+
+    shapely.prepare(poly)
+    band = [shapely.contains_xy(poly, np.tile(gx, len(y)), np.repeat(y, len(gx)))
+            for y in np.array_split(gy, max(1, -(-len(gy) // rows)))]
+    return np.concatenate(band) if band else np.zeros(0, bool)
 
 
 _STAMP_CHUNK = 1 << 16
 
 
-def _stamp(samples, label, gx, gy, res, r, covered, cells, labels):
+def _stamp(samples, label, gx, gy, res, r, covered, owner, twice):
     """Mark the grid nodes (axes ``gx`` (nx,), ``gy`` (ny,) mm, ``res`` apart) within ``r`` of
-    ``samples`` ((q, 2) mm) in ``covered`` ((nx * ny,) bool, row-major); append
-    the nodes within 0.999 r, and the label of the sample reaching them, to
-    ``cells`` and ``labels`` (int32 arrays)."""
+    ``samples`` ((q, 2) mm) in ``covered`` ((nx * ny,) bool, row-major); of the nodes
+    within 0.999 r, give ``owner`` ((nx * ny,) int32, -1: none yet) the label of a
+    sample reaching them and mark in ``twice`` ((nx * ny,) bool) those that samples
+    of two different labels reach."""
     nx, ny = len(gx), len(gy)
     # Each sample stamps the nodes within r of it: those lie in a box of
     # ``span`` nodes a side starting at the first node no further than r left
@@ -198,8 +204,17 @@ def _stamp(samples, label, gx, gy, res, r, covered, cells, labels):
             cell = row[hit] + ix[hit]
             covered[cell] = True
             strict = d2[hit] < (0.999 * r) ** 2
-            cells.append(cell[strict].astype(np.int32))
-            labels.append(label[hit[strict]].astype(np.int32))
+            _own(owner, twice, cell[strict], label[hit[strict]])
+
+
+def _own(owner, twice, cell, lab):
+    """Give the nodes ``cell`` ((k,) int) the labels ``lab`` ((k,) int) in ``owner``, and
+    mark in ``twice`` those a different label reached: one already there, or another of
+    these (a node's owner is then one of its labels, which the others differ from)."""
+    seen = owner[cell]
+    twice[cell[(seen >= 0) & (seen != lab)]] = True
+    owner[cell] = lab
+    twice[cell[owner[cell] != lab]] = True
 
 
 def isoline_angles(xy, faces, level, u):
