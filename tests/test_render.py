@@ -371,3 +371,23 @@ def test_pictures_are_written_as_png_that_decodes_to_the_same_pixels():
         assert back.format == "PNG" and back.mode == want.mode
         assert np.array_equal(np.asarray(back), np.asarray(want))
         assert back.info["dpi"] == pytest.approx((300, 300), abs=0.01)
+
+
+def test_drawing_many_segments_holds_little_beside_the_canvas():
+    """A 175 mm part's tool paths are a few hundred thousand segments on a 1400 px
+    canvas: their spans and the blend are worked out in batches, so the drawing holds
+    a few times the canvas, not every drawn pixel's colours at once."""
+    import tracemalloc
+    from pipeline.pictures.raster import draw_segments
+    rng = np.random.default_rng(5)
+    p0 = rng.uniform(0, 1400, size=(300_000, 2))
+    p1 = p0 + rng.normal(scale=6.0, size=p0.shape)
+    canvas = np.full((1400, 1400, 3), 255.0, np.float32)
+    tracemalloc.start()
+    try:
+        draw_segments(canvas, p0, p1, (20, 60, 200), width_px=8.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 6 * canvas.nbytes          # all at once: 27 times
+    assert (canvas < 255).any(axis=2).mean() > 0.9
