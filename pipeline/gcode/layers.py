@@ -2,7 +2,7 @@
 
 Strings are built per field with vectorised integer formatting
 (:mod:`pipeline.gcode.numfmt`) over all moves of a layer at once and shared by all
-layers (only Z differs); only the travel blocks between traces are built in a Python
+layers of a thickness group (only Z differs), one group's at a time; only the travel blocks between traces are built in a Python
 loop over traces.
 """
 
@@ -16,18 +16,18 @@ from pipeline.gcode.summary import one_line
 
 @dataclass
 class MoveText:
-    """One layer's move strings, shared by every layer of a thickness group.
+    """One layer's trace bounds and E, shared by every layer of a thickness group; its
+    strings are made by :func:`move_strings` only while its layers are written (a
+    248 mm terrain's six layers held 75 MB of them at once).
 
-    base : (m,) object, str: ``G1 X.. Y..`` of each move (every layer);
-    tails : column -> (m,) object array, `` I.. J.. E..`` of each move for each
-    thickness column of ``mv["th"]`` its layers print; trace_ends : (t,) int, one past
-    each trace's last move; e_trace_end : column -> (t,) int, E at each trace's end in
-    1e-5 mm; filament_mm : its layers' filament, mm.
+    trace_ends : (t,) int, one past each trace's last move; e_cum : column -> (m,) int,
+    the E at each move's end in 1e-5 mm (cumulative over the layer) for each thickness
+    column of ``mv["th"]`` its layers print; e_trace_end : column -> (t,) int, E at each
+    trace's end in 1e-5 mm; filament_mm : its layers' filament, mm.
     """
 
-    base: np.ndarray
-    tails: dict
     trace_ends: np.ndarray
+    e_cum: dict
     e_trace_end: dict
     filament_mm: float
 
@@ -38,6 +38,26 @@ def text_of_moves(mv, settings, layers=None):
     first, last = layers or (1, settings.layers)
     n_moves = len(mv["len"])
     trace_ends = np.concatenate([mv["first"][1:], [n_moves]])
+    e_cums, e_ends, filament = {}, {}, 0.0
+    k = mv["th"].shape[1]
+    cols = [0] if k == 1 else range(first - 1, last)
+    for col in cols:
+        e_mm = (mv["len"] * (mv["th"][:, col] / 1000.0) * settings.path_width_mm
+                / settings.filament_area_mm2 * mv["flow"])
+        e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
+        e_cums[col] = e_cum
+        e_ends[col] = e_cum[trace_ends - 1]
+        filament += e_cum[-1] / 1e5 * (last - first + 1 if k == 1 else 1)
+    return MoveText(trace_ends=trace_ends, e_cum=e_cums, e_trace_end=e_ends,
+                    filament_mm=filament)
+
+
+def move_strings(mv, text, settings):
+    """The strings of one layer's moves ``mv`` with its :class:`MoveText` ``text``:
+    (base, tails), base (m,) object, ``G1 X.. Y..`` of each move (every layer); tails :
+    column -> (m,) object, `` I.. J.. E..`` of each move for each column of
+    ``text.e_cum``."""
+    n_moves = len(mv["len"])
     prev = np.empty_like(mv["end"])
     prev[1:] = mv["end"][:-1]
     prev[mv["first"]] = mv["start"]
@@ -54,13 +74,8 @@ def text_of_moves(mv, settings, layers=None):
         i_s[mv["ij"][:, 0] == 0] = ""
         j_s[mv["ij"][:, 1] == 0] = ""
         ij[is_arc] = (i_s + j_s)[is_arc]
-    tails, e_ends, filament = {}, {}, 0.0
-    k = mv["th"].shape[1]
-    cols = [0] if k == 1 else range(first - 1, last)
-    for col in cols:
-        e_mm = (mv["len"] * (mv["th"][:, col] / 1000.0) * settings.path_width_mm
-                / settings.filament_area_mm2 * mv["flow"])
-        e_cum = np.rint(np.cumsum(e_mm) * 1e5).astype(np.int64)
+    tails = {}
+    for col, e_cum in text.e_cum.items():
         if settings.relative_e:
             e_strings = format_fixed(np.diff(np.concatenate([[0], e_cum])), 5, " E")
         else:
@@ -68,10 +83,7 @@ def text_of_moves(mv, settings, layers=None):
         # A dry move (a hop over printed paths) carries no E: the nozzle moves on.
         e_strings[mv["flow"] == 0] = ""
         tails[col] = ij + e_strings
-        e_ends[col] = e_cum[trace_ends - 1]
-        filament += e_cum[-1] / 1e5 * (last - first + 1 if k == 1 else 1)
-    return MoveText(base=code + xs + ys, tails=tails, trace_ends=trace_ends,
-                    e_trace_end=e_ends, filament_mm=filament)
+    return code + xs + ys, tails
 
 
 @dataclass
@@ -116,19 +128,25 @@ def emit(sink, header, groups, timing, settings):
         sink.write(settings.start_gcode.rstrip("\n") + "\n")
     sink.write("G90\n%s\n" % ("M83" if settings.relative_e else "M82"))
     travel = _Travel(settings, timing.z_speed_mm_s)
+    made = None
     for layer in range(1, settings.layers + 1):
         g = next(g for g in groups if g.first <= layer <= g.last)
+        if made is None or made[0] is not g:
+            # A group's layers are consecutive: its strings are made at its first layer
+            # and the last group's dropped first, so one group's are alive at a time.
+            made = None
+            made = (g, move_strings(g.mv, g.text, settings))
         th = g.mv["th"]
         col = min(layer, th.shape[1]) - 1
         top_mm = layer_z_um(th, layer).max() / 1000.0
         sink.write("\n".join(travel.layer_head(layer, top_mm, th[:, col].max() / 1000.0)) + "\n")
-        _emit_layer(sink, layer, g.mv, g.text, travel, g.labels)
+        _emit_layer(sink, layer, g.mv, g.text, made[1], travel, g.labels)
     if settings.end_gcode:
         sink.write(settings.end_gcode.rstrip("\n") + "\n")
     sink.write("; end of hostd job\n")
 
 
-def _emit_layer(sink, layer, mv, text, travel, labels):
+def _emit_layer(sink, layer, mv, text, strings, travel, labels):
     col = min(layer, mv["th"].shape[1]) - 1
     z_um = layer_z_um(mv["th"], layer)
     # Z is written where it changes from the previous move of the same trace.
@@ -140,7 +158,8 @@ def _emit_layer(sink, layer, mv, text, travel, labels):
     zs[shown] = format_fixed(z_um[shown], 3, " Z")
     f_print = travel.print_feed(layer)
     fs, feeds = _feeds(mv, f_print, travel.f_travel)
-    lines = text.base + zs + text.tails[col] + fs
+    base, tails = strings
+    lines = base + zs + tails[col] + fs
     for ti in range(len(text.trace_ends)):
         a, b = int(mv["first"][ti]), int(text.trace_ends[ti])
         blk = [";" + one_line(labels[ti])] if labels is not None and labels[ti] else []

@@ -277,6 +277,14 @@ def global_system(V, faces):
     return system
 
 
+def forget_systems():
+    """Drop the kept global systems (their factors are tens of MB on a large sheet): for
+    when no more layouts of the same target will be solved, e.g. once a plan's sheet is
+    laid out and settled."""
+    with _systems_lock:
+        _systems.clear()
+
+
 def _global_system(V, faces):
     n, m = len(V), len(faces)
     Dm_inv, area = target_frames(V, faces)

@@ -9,7 +9,7 @@ import time
 from pipeline import alternatives, fitting
 from pipeline.geometry import on_bed, quarter_turn
 from pipeline.layout import curvature
-from pipeline.layout.free import FREE_BELOW, flatten_free
+from pipeline.layout.free import FREE_BELOW, flatten_free, forget_systems
 from pipeline.layout.reach import reach
 from pipeline.meshing.grid import build_grid_mesh
 from pipeline.paths.sheet import Sheet
@@ -67,6 +67,9 @@ class FreeMethod:
         result.sim = sim
         result.problems += simulation_problems(sim)
         timing["simulate"] = time.perf_counter() - t
+        # The layouts are solved: their factored systems (~45 MB on a 248 mm terrain) would
+        # only sit under the tool paths' own peak.
+        forget_systems()
         t = stage("toolpath", "stripes %.3g mm wide along the print direction"
                   % profile.path_width_mm)
         # The layers across are printed on the layout solved again for their shrink: the
