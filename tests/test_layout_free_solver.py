@@ -44,3 +44,15 @@ def test_the_solve_stops_where_its_residual_stalls(monkeypatch):
     assert capped.iterations == 200 and stalled.converged and stalled.iterations < 100
     assert np.abs(stalled.xy - capped.xy).max() < 0.01
     assert stalled.residual < 1.05 * capped.residual
+
+
+def test_a_plan_keeps_no_layout_systems_once_its_sheet_is_settled(tmp_path):
+    """The factored systems serve the fit, the layout and its relaid passes; once the
+    sheet is settled they would only sit under the tool paths' peak (tens of MB)."""
+    from pipeline.plan import plan_file
+    from pipeline.profiles.profile import load_profile
+    hf = shapes.dome(diameter_mm=30.0, height_mm=5.0)
+    np.save(tmp_path / "dome.npy", hf.z.astype(np.float32))
+    (tmp_path / "dome.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
+    plan = plan_file(tmp_path / "dome.npy", load_profile("generic-0.5mm"), method="free")
+    assert plan.report["flatten"]["method"] == "free" and not free._systems
