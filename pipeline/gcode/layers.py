@@ -2,8 +2,8 @@
 
 Strings are built per field with vectorised integer formatting
 (:mod:`pipeline.gcode.numfmt`) over all moves of a layer at once and shared by all
-layers of a thickness group (only Z differs), one group's at a time; only the travel blocks between traces are built in a Python
-loop over traces.
+layers of a thickness group (only Z differs), one group's at a time; only the travel
+blocks between traces are built in a Python loop over traces.
 """
 
 from dataclasses import dataclass

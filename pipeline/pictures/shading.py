@@ -203,8 +203,9 @@ def _pixel_faces(face_id, ss):
     Returns face (H, W) int (-1 where nothing covers it; where several faces share a
     pixel, the first in row-major sample order), at (H, W, 2) float32: the (x, y)
     offset within the pixel of a sample centre that face covers, and cover (H, W)
-    float32 in [0, 1], the covered share of the samples. Sampling inside the face matters on the silhouette, where a
-    face seen edge-on extrapolates to nonsense a fraction of a pixel outside it.
+    float32 in [0, 1], the covered share of the samples. Sampling inside the face
+    matters on the silhouette, where a face seen edge-on extrapolates to nonsense a
+    fraction of a pixel outside it.
     """
     H, W = face_id.shape[0] // ss, face_id.shape[1] // ss
     face = np.full((H, W), -1, face_id.dtype)
