@@ -18,8 +18,8 @@ import numpy as np
 # Pixels evaluated per chunk: the temporaries (a few MB) stay in cache, which is faster
 # than fewer, larger chunks.
 _CHUNK = 1 << 17
-# Segments whose spans are worked out at once (about a few MB of spans each).
-_SEGMENTS = 1 << 14
+# Primitives whose spans are worked out at once (a few MB of spans).
+_BATCH = 1 << 14
 
 
 def _boxes(lo_x, hi_x, lo_y, hi_y, width, height):
@@ -89,6 +89,15 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
     return f[keep], y[keep], xa[keep], xb[keep]
 
 
+def _batched_spans(spans, live):
+    """``spans(part)`` (-> (primitive, row, first, last column) as :func:`_spans`) of
+    ``live`` in parts of :data:`_BATCH` primitives, each cut into :func:`_span_chunks`:
+    the spans of all at once were a picture's peak (a 175 mm part's tool paths, a few
+    hundred thousand segments and millions of spans: 160 MB)."""
+    for k in range(0, len(live), _BATCH):
+        yield from _span_chunks(*spans(live[k:k + _BATCH]))
+
+
 def _span_chunks(*spans):
     """Split spans (as from :func:`_spans`) into runs of about ``_CHUNK`` pixels."""
     n = spans[3] - spans[2] + 1
@@ -150,8 +159,7 @@ def rasterize_triangles(xy, depth, faces, shape):
     az, bz, cz = ((q * z).sum(1) * zscale for q in (a, b, c))
     cz -= zmin * zscale
     best = np.full(height * width, np.iinfo(np.int64).max, dtype=np.int64)
-    f, y, xa, xb = _spans(a, b, c, live, x0, x1, y0, y1)
-    for f, y, xa, xb in _span_chunks(f, y, xa, xb):
+    for f, y, xa, xb in _batched_spans(lambda part: _spans(a, b, c, part, x0, x1, y0, y1), live):
         pix, x = _span_pixels(y * width, xa, xb)
         key = np.repeat(f, xb - xa + 1)
         if not flat:
@@ -246,15 +254,6 @@ def _capsule_spans(p0, v, reach, live, x0, x1, y0, y1):
     return g[keep], y[keep], xa[keep], xb[keep]
 
 
-def _segment_spans(p0, v, reach, live, x0, x1, y0, y1):
-    """:func:`_capsule_spans` of ``live`` in batches of :data:`_SEGMENTS`, each cut into
-    :func:`_span_chunks`: a 175 mm part's tool paths (a few hundred thousand segments,
-    millions of spans) held the spans of all at once, 160 MB at the picture's peak."""
-    for k in range(0, len(live), _SEGMENTS):
-        yield from _span_chunks(*_capsule_spans(p0, v, reach, live[k:k + _SEGMENTS],
-                                                x0, x1, y0, y1))
-
-
 def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     """Composite anti-aliased round-capped thick segments onto ``canvas`` in place.
 
@@ -309,7 +308,8 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     # Only the rows the segments reach: markers and short strokes need no full-canvas pass.
     top = int(y0[live].min())
     best = np.full((int(y1[live].max()) + 1 - top) * width, -1, dtype=np.int64)
-    for g, y, xa, xb in _segment_spans(p0, v, reach, live, x0, x1, y0, y1):
+    for g, y, xa, xb in _batched_spans(
+            lambda part: _capsule_spans(p0, v, reach, part, x0, x1, y0, y1), live):
         pix, x = _span_pixels((y - top) * width, xa, xb)
         n = xb - xa + 1
         rep = lambda k: np.repeat(cols[k].take(g), n)
