@@ -133,7 +133,11 @@ def _coverage(pxy, depth, faces, shape, ss):
     """Which face each pixel shows, where to sample it, and how much of it is covered.
 
     pxy : (n, 2) px; depth : (n,); faces : (m, 3); shape : (H, W); ss : samples per
-    pixel side. Returns as :func:`_pixel_faces`. Inside the silhouette a pixel is covered
+    pixel side. Returns face (H, W) int (-1 where nothing covers it), sample (H, W, 2)
+    float32: the (x, y) offset within the pixel of a sample centre that face covers
+    (sampling inside the face matters on the silhouette, where a face seen edge-on
+    extrapolates to nonsense a fraction of a pixel outside it), and cover (H, W) float32
+    in [0, 1], the covered share of the pixel. Inside the silhouette a pixel is covered
     or not, so one sample at its centre decides; only the pixels along the silhouette
     (and the faces reaching them) are rasterised again at ``ss`` x for their coverage:
     a fraction of the work of rasterising the whole mesh at ``ss`` x.
@@ -193,37 +197,6 @@ def _faces_reaching(pxy, faces, mask):
     x0, x1, y0, y1 = box
     n = sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0]
     return (n > 0) & (x1 > x0) & (y1 > y0)
-
-
-def _pixel_faces(face_id, ss):
-    """The face shown by each output pixel, where to sample it, and how much of the pixel
-    the mesh covers.
-
-    face_id : (H * ss, W * ss) int, -1 for background (the mesh rasterised at ``ss`` x).
-    Returns face (H, W) int (-1 where nothing covers it; where several faces share a
-    pixel, the first in row-major sample order), at (H, W, 2) float32: the (x, y)
-    offset within the pixel of a sample centre that face covers, and cover (H, W)
-    float32 in [0, 1], the covered share of the samples. Sampling inside the face
-    matters on the silhouette, where a face seen edge-on extrapolates to nonsense a
-    fraction of a pixel outside it.
-    """
-    H, W = face_id.shape[0] // ss, face_id.shape[1] // ss
-    face = np.full((H, W), -1, face_id.dtype)
-    ax = np.zeros((H, W), np.float32)
-    ay = np.zeros((H, W), np.float32)
-    count = np.zeros((H, W), np.int32)
-    # One strided sub-image per sample position: element-wise work only (reductions
-    # along a short axis and masked assignments are slow in numpy).
-    for dy in range(ss):
-        for dx in range(ss):
-            sub = face_id[dy:H * ss:ss, dx:W * ss:ss]
-            hit = sub >= 0
-            count += hit
-            new = hit & (face < 0)
-            face = np.where(new, sub, face)
-            ax = np.where(new, np.float32((dx + 0.5) / ss), ax)
-            ay = np.where(new, np.float32((dy + 0.5) / ss), ay)
-    return face, np.stack([ax, ay], axis=-1), count.astype(np.float32) / (ss * ss)
 
 
 def _vertex_colors(v, faces, cam, L, values, vmin, vmax, cmap, base_color):
