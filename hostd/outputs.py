@@ -77,17 +77,18 @@ def png_bytes(image, level=1):
     w, h = image.size
     raw = image.tobytes()
     stride = len(raw) // max(h, 1)
-    z = zlib.compressobj(level)
-    # Each row is preceded by its filter type, 0 (none).
-    parts = [z.compress(b"\0" + raw[i * stride:(i + 1) * stride]) for i in range(h)]
-    parts.append(z.flush())
+    # Each row is preceded by its filter type, 0 (none): the rows are laid out in one
+    # buffer and compressed in one call, not a call and a copy per row.
+    mv = memoryview(raw)
+    rows = b"\0".join([b""] + [mv[i * stride:(i + 1) * stride] for i in range(h)])
+    idat = zlib.compress(rows, level)
     out = [b"\x89PNG\r\n\x1a\n",
            _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, color_type, 0, 0, 0))]
     dpi = image.info.get("dpi")
     if dpi:
         ppm = [int(round(d / 0.0254)) for d in dpi]
         out.append(_png_chunk(b"pHYs", struct.pack(">IIB", ppm[0], ppm[1], 1)))
-    out += [_png_chunk(b"IDAT", b"".join(parts)), _png_chunk(b"IEND", b"")]
+    out += [_png_chunk(b"IDAT", idat), _png_chunk(b"IEND", b"")]
     return b"".join(out)
 
 
