@@ -221,9 +221,17 @@ def framed(body, title, subtitle="", legend_w=230, legend_min_h=420, footer_h=56
     return fig, (pad, by), (w - legend_w, title_h), (pad, title_h + max(bh, legend_min_h)), fs
 
 
-def to_image(canvas):
-    """(h, w, 3) float canvas, 0-255 -> RGB ``PIL.Image``."""
-    return Image.fromarray(np.clip(np.round(canvas), 0, 255).astype(np.uint8))
+def to_image(canvas, band=64):
+    """(h, w, 3) float canvas, 0-255 -> RGB ``PIL.Image``.
+
+    Rounded and clipped ``band`` rows at a time: the temporaries of a whole canvas
+    (24 MB as float32 for a 175 mm part) fall out of the cache between the passes.
+    """
+    out = np.empty(canvas.shape, np.uint8)
+    for k in range(0, canvas.shape[0], band):
+        q = np.rint(canvas[k:k + band])
+        out[k:k + band] = np.clip(q, 0, 255, out=q)
+    return Image.fromarray(out)
 
 
 def stat_lines(img, x, y, lines, fs):
