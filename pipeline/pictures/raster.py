@@ -42,16 +42,18 @@ def _edge_functions(p):
     Returns (a, b, c) each (m, 3): ``w_k(x, y) = a_k x + b_k y + c_k``, with
     ``sum_k w_k = 1``; rows of degenerate triangles are NaN.
     """
-    x0, x1, x2 = p[:, 0, 0], p[:, 1, 0], p[:, 2, 0]
-    y0, y1, y2 = p[:, 0, 1], p[:, 1, 1], p[:, 2, 1]
+    # Corner coordinates as contiguous columns: arithmetic on strided views is slower.
+    x0, x1, x2, y0, y1, y2 = np.ascontiguousarray(np.asarray(p).transpose(2, 1, 0)).reshape(6, -1)
     area2 = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(np.abs(area2) > 1e-12, 1.0 / area2, np.nan)[:, None]
+        inv = np.where(np.abs(area2) > 1e-12, 1.0 / area2, np.nan)
     # w_k is the signed area of (x, corner k+1, corner k+2) over the full area.
-    a = np.stack([y1 - y2, y2 - y0, y0 - y1], axis=1) * inv
-    b = np.stack([x2 - x1, x0 - x2, x1 - x0], axis=1) * inv
-    c = np.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], axis=1) * inv
-    return a, b, c
+    out = np.empty((3, len(inv), 3))
+    for k, e in enumerate(((y1 - y2, y2 - y0, y0 - y1), (x2 - x1, x0 - x2, x1 - x0),
+                           (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0))):
+        for j in range(3):
+            np.multiply(e[j], inv, out=out[k, :, j])
+    return out[0], out[1], out[2]
 
 
 def _spans(a, b, c, live, x0, x1, y0, y1):
@@ -70,18 +72,24 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
     eps = -1e-9
     al, bl, cl = a[live], b[live], c[live]
     with np.errstate(divide="ignore", invalid="ignore"):
-        slope, icpt = -bl / al, (eps - cl) / al
+        slope, icpt = (-bl / al).ravel(), ((eps - cl) / al).ravel()
     nrow = y1[live] - y0[live] + 1
     y = np.repeat(y0[live] - np.cumsum(nrow) + nrow, nrow) + np.arange(int(nrow.sum()))
-    yc = y + 0.5
-    rows = np.arange(len(live))
-    bounds = []
+    # Per face the slopes and intercepts of the two lower bounds then the two upper ones,
+    # four to a row, repeated down its rows in one call (32-byte rows are a fast case of
+    # np.repeat; a call per column cost more than the arithmetic).
+    at = 3 * np.arange(len(live))
+    pick = []
     for side in (al > 0, al < 0):
-        for k in (np.argmax(side, axis=1), 2 - np.argmax(side[:, ::-1], axis=1)):
-            # Far faster to repeat a face's column down its rows than to gather per row.
-            bounds.append(np.repeat(slope[rows, k], nrow) * yc + np.repeat(icpt[rows, k], nrow))
-    lo = np.maximum(bounds[0], bounds[1])
-    hi = np.minimum(bounds[2], bounds[3])
+        s0, s1, s2 = side[:, 0], side[:, 1], side[:, 2]
+        # The first and the last edge of the kind (as argmax: 0 and 2 when there is none).
+        pick += [at + np.where(s0, 0, np.where(s1, 1, np.where(s2, 2, 0))),
+                 at + np.where(s2, 2, np.where(s1, 1, np.where(s0, 0, 2)))]
+    pick = np.stack(pick, axis=1)
+    bounds = (np.repeat(slope.take(pick), nrow, axis=0) * (y + 0.5)[:, None]
+              + np.repeat(icpt.take(pick), nrow, axis=0))
+    lo = np.maximum(bounds[:, 0], bounds[:, 1])
+    hi = np.minimum(bounds[:, 2], bounds[:, 3])
     f = np.repeat(live, nrow)
     xa = np.maximum(np.ceil(lo - 0.5), np.repeat(x0[live], nrow)).astype(np.int64)
     xb = np.minimum(np.floor(hi - 0.5), np.repeat(x1[live], nrow)).astype(np.int64)
@@ -155,9 +163,12 @@ def rasterize_triangles(xy, depth, faces, shape):
     # 31 bits it takes in the key.
     zmin, zmax = z[live].min(), z[live].max()
     flat = not zmax > zmin  # one depth (a 2-D layout): the lowest face index wins
-    zscale = (2 ** 31 - 2) / max(zmax - zmin, 1e-12)
-    az, bz, cz = ((q * z).sum(1) * zscale for q in (a, b, c))
-    cz -= zmin * zscale
+    if not flat:
+        zscale = (2 ** 31 - 2) / max(zmax - zmin, 1e-12)
+        # Sums written out: a reduction along a 3-long axis runs a loop per face.
+        az, bz, cz = ((q[:, 0] * z[:, 0] + q[:, 1] * z[:, 1] + q[:, 2] * z[:, 2]) * zscale
+                      for q in (a, b, c))
+        cz -= zmin * zscale
     best = np.full(height * width, np.iinfo(np.int64).max, dtype=np.int64)
     for f, y, xa, xb in _batched_spans(lambda part: _spans(a, b, c, part, x0, x1, y0, y1), live):
         pix, x = _span_pixels(y * width, xa, xb)
@@ -167,9 +178,8 @@ def rasterize_triangles(xy, depth, faces, shape):
             zq = np.repeat(zrow, xb - xa + 1) + np.repeat(az[f], xb - xa + 1) * (x + 0.5)
             key |= np.clip(zq, 0, 2 ** 31 - 2).astype(np.int64) << 32
         np.minimum.at(best, pix, key)
-    hit = best != np.iinfo(np.int64).max
-    face_id[hit] = (best[hit] & 0xFFFFFFFF).astype(np.int32)
-    return face_id.reshape(shape)
+    # The face is the key's low 32 bits; where none won they are all ones: -1 as int32.
+    return (best & 0xFFFFFFFF).astype(np.int32).reshape(shape)
 
 
 def pixel_barycentrics(xy, faces, face_id):
@@ -326,17 +336,36 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
         cq = np.round(cov[sel] * 65535).astype(np.int64)
         np.maximum.at(best, pix[sel], np.repeat(base.take(g), n)[sel] | (cq << 32))
     col = np.ascontiguousarray(np.broadcast_to(np.asarray(colors, canvas.dtype), (s, 3)))
-    hits = np.flatnonzero(best >= 0)
-    # Blended a chunk of pixels at a time: the whole picture's at once held six colour
-    # arrays of every pixel drawn (a 175 mm part's tool paths: 130 MB, the plan's peak).
-    for k in range(0, len(hits), _CHUNK):
-        hit = hits[k:k + _CHUNK]
-        key = best[hit]
-        cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype)[:, None] / 65535
-        hit += top * width
-        old = get_pixels(canvas, hit)
-        set_pixels(canvas, hit, old + cov * (col.take(key & 0xFFFFFFFF, axis=0) - old))
+    _blend(canvas, top, best, col)
     return canvas
+
+
+def _blend(canvas, top, best, col):
+    """Blend the winners ``best`` (packed keys of :func:`draw_segments`, -1 where none,
+    rows from ``top`` on) into ``canvas``, a band of rows of about ``_CHUNK`` pixels at a
+    time: the whole picture's at once held six colour arrays of every pixel drawn (a 175
+    mm part's tool paths: 130 MB, the plan's peak)."""
+    width = canvas.shape[1]
+    flat = canvas.reshape(-1, 3)
+    band = max(1, _CHUNK // width) * width
+    for k in range(0, len(best), band):
+        key = best[k:k + band]
+        hit = key >= 0
+        o = (top * width + k)
+        if np.count_nonzero(hit) * 4 > len(key):
+            # Mostly drawn (tool paths, the stress layout): blending every pixel of the
+            # band in place beats gathering and scattering the drawn ones. Where nothing
+            # won, the coverage is 0 and the pixel keeps its value exactly.
+            cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype) / 65535 * hit
+            old = flat[o:o + len(key)]
+            old += cov[:, None] * (col.take(np.where(hit, key & 0xFFFFFFFF, 0), axis=0) - old)
+            continue
+        idx = np.flatnonzero(hit)
+        key = key[idx]
+        cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype)[:, None] / 65535
+        idx += o
+        old = get_pixels(canvas, idx)
+        set_pixels(canvas, idx, old + cov * (col.take(key & 0xFFFFFFFF, axis=0) - old))
 
 
 def _pixel_items(canvas):
