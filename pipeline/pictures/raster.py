@@ -35,7 +35,7 @@ def _boxes(lo_x, hi_x, lo_y, hi_y, width, height):
     return x0, x1, y0, y1
 
 
-def _edge_functions(p):
+def edge_functions(p):
     """Barycentric coordinates as linear functions of (x, y).
 
     p : (m, 3, 2) float, triangle corners in pixels.
@@ -59,7 +59,7 @@ def _edge_functions(p):
 def _spans(a, b, c, live, x0, x1, y0, y1):
     """The pixel centres inside each triangle, as one column span per (face, row).
 
-    a, b, c : (m, 3) edge functions (:func:`_edge_functions`); live : faces to draw;
+    a, b, c : (m, 3) edge functions (:func:`edge_functions`); live : faces to draw;
     x0..y1 : (m,) their clipped pixel boxes. Returns (face, row, first, last column),
     each (r,) int64, empty spans dropped. A centre on a shared edge belongs to both
     neighbours (the tolerance keeps rounding from opening cracks); depth settles ties.
@@ -122,7 +122,7 @@ def _span_pixels(row_start, xa, xb):
     return np.repeat(row_start, n) + x, x
 
 
-def rasterize_triangles(xy, depth, faces, shape):
+def rasterize_triangles(xy, depth, faces, shape, edges=None):
     """Z-buffered coverage: which face is visible at each pixel.
 
     Both windings are drawn (no back-face culling).
@@ -136,6 +136,8 @@ def rasterize_triangles(xy, depth, faces, shape):
         screen space (exact for orthographic views).
     faces : (m, 3) int
     shape : (height, width)
+    edges : (a, b, c), optional
+        :func:`edge_functions` of ``xy[faces]``, when the caller has them.
 
     Returns
     -------
@@ -150,8 +152,10 @@ def rasterize_triangles(xy, depth, faces, shape):
     xy = np.asarray(xy, dtype=np.float64)
     px, py = xy[:, 0][faces], xy[:, 1][faces]
     z = np.asarray(depth, dtype=np.float64)[faces]
-    with np.errstate(invalid="ignore"):
-        a, b, c = _edge_functions(np.stack([px, py], axis=2))
+    if edges is None:
+        with np.errstate(invalid="ignore"):
+            edges = edge_functions(np.stack([px, py], axis=2))
+    a, b, c = edges
     ok = np.isfinite(a[:, 0]) & np.isfinite(z[:, 0] + z[:, 1] + z[:, 2])
     lo = lambda q: np.minimum(np.minimum(q[:, 0], q[:, 1]), q[:, 2])
     hi = lambda q: np.maximum(np.maximum(q[:, 0], q[:, 1]), q[:, 2])
@@ -202,7 +206,7 @@ def pixel_barycentrics(xy, faces, face_id):
     rows, cols = np.nonzero(face_id >= 0)
     face = face_id[rows, cols].astype(np.int64)
     # Coefficients once per face, then one gather per pixel.
-    coef = np.concatenate(_edge_functions(np.asarray(xy, dtype=np.float64)[np.asarray(faces)]), axis=1)
+    coef = np.concatenate(edge_functions(np.asarray(xy, dtype=np.float64)[np.asarray(faces)]), axis=1)
     k = coef[face]
     w = k[:, 0:3] * (cols[:, None] + 0.5) + k[:, 3:6] * (rows[:, None] + 0.5) + k[:, 6:9]
     w = np.clip(np.nan_to_num(w, nan=1.0 / 3), 0.0, 1.0)
@@ -210,7 +214,7 @@ def pixel_barycentrics(xy, faces, face_id):
     return rows, cols, face, w
 
 
-def face_planes(xy, faces, values):
+def face_planes(xy, faces, values, edges=None):
     """Per-vertex values as linear functions of the pixel position within each face.
 
     Parameters
@@ -218,21 +222,25 @@ def face_planes(xy, faces, values):
     xy : (n, 2) float, pixels
     faces : (m, 3) int
     values : (n, k) float
+    edges : (a, b, c), optional
+        :func:`edge_functions` of ``xy[faces]``, when the caller has them.
 
     Returns
     -------
-    (m, k, 3) float32: value ``j`` at pixel (x, y) of face ``f`` is
-    ``P[f, j, 0] * x + P[f, j, 1] * y + P[f, j, 2]`` (exact inside the face, NaN rows
-    for degenerate faces). One gather per pixel then replaces the barycentric weights
-    and the three corner gathers of :func:`pixel_barycentrics`.
+    (k, 3, m) float32: value ``j`` at pixel (x, y) of face ``f`` is
+    ``P[j, 0, f] * x + P[j, 1, f] * y + P[j, 2, f]`` (exact inside the face, NaN for
+    degenerate faces). One gather per pixel then replaces the barycentric weights
+    and the three corner gathers of :func:`pixel_barycentrics`; each coefficient is a
+    contiguous row, so the gathers and the arithmetic on them run on contiguous arrays.
     """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    a, b, c = _edge_functions(np.asarray(xy, dtype=np.float64)[faces])
-    vals = np.asarray(values, dtype=np.float64)
-    q = [vals[faces[:, j]] for j in range(3)]  # (m, k) per corner
-    out = np.empty((len(faces), vals.shape[1], 3), np.float32)
+    a, b, c = edge_functions(np.asarray(xy, dtype=np.float64)[faces]) if edges is None else edges
+    vt = np.ascontiguousarray(np.asarray(values, dtype=np.float64).T)
+    q = [vt[:, faces[:, j]] for j in range(3)]  # (k, m) per corner
+    out = np.empty((len(vt), 3, len(faces)), np.float32)
     for i, e in enumerate((a, b, c)):
-        out[:, :, i] = e[:, 0, None] * q[0] + e[:, 1, None] * q[1] + e[:, 2, None] * q[2]
+        e0, e1, e2 = (np.ascontiguousarray(e[:, j]) for j in range(3))
+        out[:, i] = e0 * q[0] + e1 * q[1] + e2 * q[2]
     return out
 
 

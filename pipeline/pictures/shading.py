@@ -9,16 +9,22 @@ import numpy as np
 from PIL import Image, ImageFilter
 
 from pipeline.pictures.figure import INVERTED, colormap
-from pipeline.pictures.raster import face_planes, rasterize_triangles
+from pipeline.pictures.raster import edge_functions, face_planes, rasterize_triangles
 
 
 def _vertex_normals(vertices, faces):
-    """Area-weighted unit vertex normals: (n, 3)."""
-    v = vertices[faces]
-    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    n = np.stack([np.bincount(faces.ravel(), np.repeat(fn[:, k], 3), minlength=len(vertices))
-                  for k in range(3)], axis=1)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    """Area-weighted unit vertex normals: (n, 3).
+
+    Written out on contiguous coordinate rows (what ``np.cross`` and ``np.linalg.norm``
+    compute, in the same order): on (m, 3) arrays they loop per face."""
+    vt = np.ascontiguousarray(vertices.T)
+    (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = (q[faces.T] for q in vt)
+    ax, ay, az, bx, by, bz = x1 - x0, y1 - y0, z1 - z0, x2 - x0, y2 - y0, z2 - z0
+    corner = faces.ravel()
+    n = [np.bincount(corner, np.repeat(f, 3), minlength=len(vertices))
+         for f in (ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx)]
+    norm = np.maximum(np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), 1e-12)
+    return np.stack([q / norm for q in n], axis=1)
 
 
 def project(p, rows):
@@ -91,7 +97,9 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
     W, H = size_px
     ss = int(supersample)
     pxy = np.stack([W / 2 + (scr[:, 0] - cx) * s, H / 2 - (scr[:, 1] - cy) * s], 1)
-    face, sample, cover = _coverage(pxy, scr[:, 2], faces, (H, W), ss)
+    with np.errstate(invalid="ignore"):
+        edges = edge_functions(pxy[faces])  # for both the z-buffer and the colour planes
+    face, sample, cover = _coverage(pxy, scr[:, 2], faces, (H, W), ss, edges)
     idx = np.flatnonzero(face >= 0)  # flat pixel index: 1-D gathers are the fast ones
     rows, cols = np.divmod(idx, W)
     f = face.reshape(-1)[idx]
@@ -100,22 +108,26 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
     # Gouraud: the mesh's triangles are a few pixels across, so colours lit per vertex and
     # interpolated per pixel look the same as lighting every pixel, at a fraction of the work.
     attrs = [rgb[:, 0], rgb[:, 1], rgb[:, 2], v[:, 2], shade]
-    planes = face_planes(pxy, faces, np.stack(attrs[:4 if hatch is None else 5], axis=1))
-    at = planes.take(f, axis=0)
+    planes = face_planes(pxy, faces, np.stack(attrs[:4 if hatch is None else 5], axis=1), edges)
     off = sample.reshape(-1, 2).take(idx, axis=0)
-    x = (cols + off[:, 0])[:, None]
-    y = (rows + off[:, 1])[:, None]
-    val = at[:, :, 0] * x + at[:, :, 1] * y + at[:, :, 2]
-    col = val[:, :3]
+    ox, oy = off[:, 0], off[:, 1]
+    x, y = cols + ox, rows + oy
+    # One value (r, g, b, height, shade) at a time: contiguous rows, no (k, 5) arrays.
+    at = [[planes[j, i].take(f) for i in range(3)] for j in range(len(planes))]
+    val = [a * x + b * y + c for a, b, c in at]
     if contour_mm:
         # Contours from the height at the pixel centre: at the varying sample offsets
         # thin lines would come out dotted.
-        z = val[:, 3] + at[:, 3, 0] * (0.5 - off[:, 0]) + at[:, 3, 1] * (0.5 - off[:, 1])
-        col *= (1.0 - 0.28 * _contour_ink(z, at[:, 3, :2], contour_mm))[:, None]
+        z = val[3] + at[3][0] * (0.5 - ox) + at[3][1] * (0.5 - oy)
+        darken = 1.0 - 0.28 * _contour_ink(z, at[3][0], at[3][1], contour_mm)
+        for k in range(3):
+            val[k] *= darken
     if hatch is not None:
         # Diagonal stripes keep the shading and the error colour readable between them.
         stripe = np.asarray(hatch, bool)[f] & ((rows + cols) // 3 % 3 == 0)
-        col[stripe] = np.asarray(INVERTED, np.float32) * (0.55 + 0.45 * val[stripe, 4:5])
+        lit = 0.55 + 0.45 * val[4][stripe]
+        for k, q in enumerate(np.asarray(INVERTED, np.float32)):
+            val[k][stripe] = q * lit
     img = np.zeros((H * W, 4), np.uint8)
     alpha = cover.reshape(-1)[idx]
     if shadow:
@@ -123,17 +135,18 @@ def shaded_view(vertices, faces, values=None, vmin=0.0, vmax=1.0, cmap="displace
         img[:, 3] = sh
         alpha = alpha + (1.0 - alpha) * sh[idx] * np.float32(1 / 255)
     px = np.empty((len(idx), 4), np.uint8)
-    px[:, :3] = np.clip(col + 0.5, 0, 255)
+    for k in range(3):
+        px[:, k] = np.clip(val[k] + 0.5, 0, 255)
     px[:, 3] = np.clip(255 * alpha + 0.5, 0, 255)
     img.view(np.uint32)[idx, 0] = px.view(np.uint32)[:, 0]  # whole RGBA pixels as 1-D items
     return Image.fromarray(img.reshape(H, W, 4), "RGBA"), fit
 
 
-def _coverage(pxy, depth, faces, shape, ss):
+def _coverage(pxy, depth, faces, shape, ss, edges=None):
     """Which face each pixel shows, where to sample it, and how much of it is covered.
 
     pxy : (n, 2) px; depth : (n,); faces : (m, 3); shape : (H, W); ss : samples per
-    pixel side. Returns face (H, W) int (-1 where nothing covers it), sample (H, W, 2)
+    pixel side; edges : :func:`edge_functions` of ``pxy[faces]``, optional. Returns face (H, W) int (-1 where nothing covers it), sample (H, W, 2)
     float32: the (x, y) offset within the pixel of a sample centre that face covers
     (sampling inside the face matters on the silhouette, where a face seen edge-on
     extrapolates to nonsense a fraction of a pixel outside it), and cover (H, W) float32
@@ -143,7 +156,7 @@ def _coverage(pxy, depth, faces, shape, ss):
     a fraction of the work of rasterising the whole mesh at ``ss`` x.
     """
     H, W = shape
-    fid = rasterize_triangles(pxy, depth, faces, shape)
+    fid = rasterize_triangles(pxy, depth, faces, shape, edges)
     covered = fid >= 0
     sample = np.full((H, W, 2), 0.5, np.float32)
     if ss == 1 or not covered.any():
@@ -220,14 +233,14 @@ def _vertex_colors(v, faces, cam, L, values, vmin, vmax, cmap, base_color):
     return base * shade[:, None] + 55.0 * spec[:, None], shade
 
 
-def _contour_ink(z, grad, step, width_px=0.5):
+def _contour_ink(z, gx, gy, step, width_px=0.5):
     """Anti-aliased contour lines every ``step`` mm: ink (k,) float32 in [0, 1].
 
-    z : (k,) heights (mm) at pixel centres; grad : (k, 2) their change per pixel (x, y).
-    The distance to the nearest level in pixels is the height difference over the slope.
+    z : (k,) heights (mm) at pixel centres; gx, gy : (k,) their change per pixel in x and
+    y. The distance to the nearest level in pixels is the height difference over the slope.
     """
     q = z / step
-    dist = np.abs(q - np.round(q)) * step / np.maximum(np.hypot(grad[:, 0], grad[:, 1]), 1e-12)
+    dist = np.abs(q - np.round(q)) * step / np.maximum(np.hypot(gx, gy), 1e-12)
     return np.clip(0.5 * width_px + 0.5 - dist, 0.0, 1.0).astype(np.float32)
 
 
