@@ -221,6 +221,16 @@ def framed(body, title, subtitle="", legend_w=230, legend_min_h=420, footer_h=56
     return fig, (pad, by), (w - legend_w, title_h), (pad, title_h + max(bh, legend_min_h)), fs
 
 
+def extent(points):
+    """Per-column minimum and maximum of ``points`` (n, k): ((k,), (k,)).
+
+    Column by column: numpy reduces a tall, narrow array along its first axis a row at a
+    time (a 180 000 x 2 layout: 6 ms against 0.15)."""
+    pts = np.asarray(points)
+    return (np.array([pts[:, j].min() for j in range(pts.shape[1])]),
+            np.array([pts[:, j].max() for j in range(pts.shape[1])]))
+
+
 def to_image(canvas, band=64):
     """(h, w, 3) float canvas, 0-255 -> RGB ``PIL.Image``.
 

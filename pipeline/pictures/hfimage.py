@@ -25,14 +25,40 @@ def _fill_nearest(z):
     return z[tuple(idx)]
 
 
-def _hillshade(z, pixel_mm, azimuth_deg=315.0, altitude_deg=45.0):
-    """Lambertian hillshade (0..1) of a grid in mm; light from the north-west by default."""
-    gy, gx = np.gradient(z, pixel_mm)  # rows run south, so -gy is the northward slope
-    nx, ny, nz = -gx, gy, np.ones_like(z)
+def _hillshade(gy, gx, azimuth_deg=315.0, altitude_deg=45.0):
+    """Lambertian hillshade (0..1) of a grid in mm from its gradient (``np.gradient``: rows
+    run south, so -gy is the northward slope); light from the north-west by default."""
+    nx, ny, nz = -gx, gy, np.ones_like(gx)
     norm = np.sqrt(nx * nx + ny * ny + 1.0)
     az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
     lx, ly, lz = np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)
     return np.clip((nx * lx + ny * ly + nz * lz) / norm, 0.0, 1.0)
+
+
+def _shaded_relief(zb, pixel_mm, zmin, zmax, a, big, band=64):
+    """The tinted, hillshaded relief (H, W, 3) on white outside the footprint.
+
+    zb : (H, W) heights; a : (H, W) footprint coverage; big : (H, W) share where the fit
+    moved the surface (tinted), or None. Worked out ``band`` rows and one colour channel at
+    a time: the dozen whole-picture float64 temporaries fell out of the cache between the
+    passes, and a per-pixel factor broadcast over the channels makes numpy loop three
+    values at a time. float32 as the rasteriser prefers, float64 when tinted (as it was).
+    """
+    gy, gx = np.gradient(zb, pixel_mm)
+    H, W = zb.shape
+    canvas = np.empty((H, W, 3), np.float32 if big is None else np.float64)
+    tint = np.array(REMOVED_COLOR) * 0.35
+    for r in range(0, H, band):
+        s = slice(r, r + band)
+        lit = 0.45 + 0.65 * _hillshade(gy[s], gx[s])
+        cmap = colormap(zb[s], zmin, zmax, "height")
+        white = WHITE * (1 - a[s])
+        if big is not None:
+            keep = 1 - 0.35 * big[s] * a[s]
+        for k in range(3):
+            c = (np.clip(cmap[..., k] * lit, 0, 255) * a[s] + white).astype(np.float32)
+            canvas[s, :, k] = c if big is None else c * keep + tint[k] * big[s] * a[s]
+    return canvas
 
 
 REMOVED_COLOR = (150, 40, 160)
@@ -80,20 +106,16 @@ def heightfield_image(z, removed_peaks=(), pixel_mm=1.0, title="", isoline_step_
     # samples and enlarging the result shows every sample as a facet.
     zb = np.asarray(Image.fromarray(zf.astype(np.float32), "F").resize((W, H), Image.BICUBIC),
                     np.float64)
-    shade = _hillshade(zb, pixel_mm * cols / W)
-    rgb = colormap(zb, zmin, zmax, "height") * (0.45 + 0.65 * shade[..., None])
     # The footprint's edge is the 0.5 level of the bilinearly enlarged mask, with a
     # 1 px ramp: smooth diagonals instead of sample-sized stair steps.
     mask = Image.fromarray(valid.astype(np.float32), "F").resize((W, H), Image.BILINEAR)
-    a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)[..., None]
-    canvas = (np.clip(rgb, 0, 255) * a + WHITE * (1 - a)).astype(np.float32)
-
-    moved = None
+    a = np.clip((np.asarray(mask, np.float64) - 0.5) * f + 0.5, 0.0, 1.0)
+    moved = big = None
     if removed_mm is not None:
         moved = np.nan_to_num(np.asarray(removed_mm, np.float64), nan=0.0)
         big = np.asarray(Image.fromarray((moved > removed_at_mm).astype(np.float32), "F")
-                         .resize((W, H), Image.BILINEAR), np.float64)[..., None]
-        canvas = canvas * (1 - 0.35 * big * a) + np.array(REMOVED_COLOR) * 0.35 * big * a
+                         .resize((W, H), Image.BILINEAR), np.float64)
+    canvas = _shaded_relief(zb, pixel_mm * cols / W, zmin, zmax, a, big)
 
     step = isoline_step_mm or nice_ceil((zmax - zmin) / 12)
     levels = np.arange(np.ceil(zmin / step) * step + (step if zmin % step == 0 else 0), zmax, step)

@@ -307,7 +307,8 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     lo = np.minimum(p0, p1) - reach[:, None]
     hi = np.maximum(p0, p1) + reach[:, None]
     x0, x1, y0, y1 = _boxes(lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1], width, height)
-    live = np.flatnonzero(np.isfinite(p0).all(1) & np.isfinite(p1).all(1) & (x1 >= x0) & (y1 >= y0))
+    finite = np.isfinite(p0[:, 0] + p0[:, 1] + p1[:, 0] + p1[:, 1])  # not .all(1): a row at a time
+    live = np.flatnonzero(finite & (x1 >= x0) & (y1 >= y0))
     if len(live) == 0:
         return canvas
     v = p1 - p0
@@ -356,6 +357,7 @@ def _blend(canvas, top, best, col):
     width = canvas.shape[1]
     flat = canvas.reshape(-1, 3)
     band = max(1, _CHUNK // width) * width
+    planes = [np.ascontiguousarray(col[:, c]) for c in range(3)]
     for k in range(0, len(best), band):
         key = best[k:k + band]
         hit = key >= 0
@@ -363,10 +365,13 @@ def _blend(canvas, top, best, col):
         if np.count_nonzero(hit) * 4 > len(key):
             # Mostly drawn (tool paths, the stress layout): blending every pixel of the
             # band in place beats gathering and scattering the drawn ones. Where nothing
-            # won, the coverage is 0 and the pixel keeps its value exactly.
+            # won, the coverage is 0 and the pixel keeps its value exactly. A channel at a
+            # time: the coverage broadcast over three channels makes numpy loop per pixel.
             cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype) / 65535 * hit
-            old = flat[o:o + len(key)]
-            old += cov[:, None] * (col.take(np.where(hit, key & 0xFFFFFFFF, 0), axis=0) - old)
+            seg = np.where(hit, key & 0xFFFFFFFF, 0)
+            for c in range(3):
+                old = flat[o:o + len(key), c]
+                old += cov * (planes[c].take(seg) - old)
             continue
         idx = np.flatnonzero(hit)
         key = key[idx]

@@ -8,7 +8,7 @@ Used by :func:`pipeline.pictures.render.preview_image`; usable on its own for th
 import numpy as np
 from PIL import Image, ImageFilter
 
-from pipeline.pictures.figure import INVERTED, colormap
+from pipeline.pictures.figure import INVERTED, colormap, extent
 from pipeline.pictures.raster import edge_functions, face_planes, rasterize_triangles
 
 
@@ -276,7 +276,7 @@ def view_fit(vertex_sets, size_px, elevation_deg=35.0, azimuth_deg=-30.0, margin
     """Screen centre and px/mm that fit all ``vertex_sets`` ((n, 3) mm each) into ``size_px``."""
     cam = camera_basis(elevation_deg, azimuth_deg)
     scr = np.concatenate([project(np.asarray(v, np.float64), cam) for v in vertex_sets])
-    lo, hi = scr[:, :2].min(0), scr[:, :2].max(0)
+    lo, hi = extent(scr[:, :2])
     span = np.maximum(hi - lo, 1e-9)
     s = min(size_px[0] * (1 - 2 * margin) / span[0], size_px[1] * (1 - 2 * margin) / span[1])
     return (0.5 * (lo + hi)), s
