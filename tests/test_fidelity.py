@@ -78,3 +78,38 @@ def test_the_resolving_scale_follows_the_stack():
     from pipeline.profiles.profile import load_profile
     prof = load_profile("generic-0.5mm")
     assert F.resolve_mm(prof) >= 2 * prof.mesh.grid_mm
+
+
+def test_each_octave_of_the_relief_says_what_the_target_and_the_sheet_keep():
+    """A target smoothed 4 mm keeps the broad octaves of the file and loses the fine
+    ones; a sheet on that target forms all of it, so what the file loses is the fit's."""
+    hf = _fine_and_broad()
+    planned = smooth(hf.z, 4.0 / hf.pixel_mm)
+    pts = _points(HeightField(planned, hf.pixel_mm))
+    got = F.fidelity(pts, pts, hf, 85.0, 2.0, planned=planned)
+    by = {b["from_mm"]: b for b in got["bands"]}
+    assert [b["from_mm"] for b in got["bands"]] == list(F.BAND_EDGES_MM)
+    assert by[2.0]["target_gain"] < 0.4 and by[16.0]["target_gain"] > 0.9, got["bands"]
+    assert all(b["formed_gain"] == pytest.approx(1.0, abs=0.05) for b in got["bands"])
+    assert all(b["sheet_gain"] == pytest.approx(b["target_gain"], abs=0.05) for b in got["bands"])
+    assert got["kept_from_mm"] in (4.0, 8.0)
+    # The file itself keeps every octave.
+    same = F.fidelity(_points(hf), _points(hf), hf, 85.0, 2.0, planned=hf.z)
+    assert same["kept_from_mm"] == F.BAND_EDGES_MM[0]
+
+
+def test_an_octave_the_sheet_overshoots_is_not_kept():
+    octaves = [{"from_mm": e, "sheet_gain": g} for e, g in
+               ((2.0, 0.1), (4.0, 0.9), (8.0, 1.6), (16.0, 1.0), (32.0, 1.0))]
+    assert F.kept_from(octaves) == 16.0
+    assert F.kept_from(octaves[:2]) == 4.0
+    assert F.kept_from([{"from_mm": 2.0, "sheet_gain": None}]) is None
+
+
+def _fine_and_broad(size_mm=120.0, px=0.5):
+    """Ripples 13 mm long (the 2-4 mm octave's) on hills 100 mm long: (HeightField)."""
+    n = int(size_mm / px) + 1
+    y, x = np.mgrid[0:n, 0:n] * px
+    z = (6.0 * np.sin(2 * np.pi * x / 100.0) * np.sin(2 * np.pi * y / 100.0)
+         + 1.0 * np.sin(2 * np.pi * x / 13.0))
+    return HeightField(z - z.min(), px, source="ripples")

@@ -481,11 +481,13 @@ def test_the_job_card_states_the_shape_against_the_file_and_against_the_plan(nod
         "fit": {"applied_smooth_mm": 6.0, "applied_scale": 1.0},
         "fidelity": {"mean_mm": 2.55, "p90_mm": 5.2, "relief_reached": 0.56,
                      "relief_given_mm": 26.3, "right_way_strong": 0.82,
-                     "curvature_slope": 0.34}}))
+                     "curvature_slope": 0.34, "kept_from_mm": 8.0}}))
     page = node.client.get("/jobs/" + node.printing).get_data(as_text=True)
     assert ("The simulated sheet ends 2.5 mm from the file as dropped on average (9 in 10 "
             "points within 5.2 mm) and reaches 56 % of its 26.3 mm relief") in page
     assert "curve the right way on 82 % of the area, and keep 34 % of their curvature" in page
+    assert ("keeps at least 80 % of the height of hills and valleys about 26 mm across and "
+            "wider, less of the narrower ones") in page
     assert ("The sheet ends 1.3 mm (0.7 % of the diameter) from the shape it was planned for "
             "(your file smoothed 6 mm); the printability check allows 3.0 % of the diameter"
             ) in page
