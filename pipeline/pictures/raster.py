@@ -70,32 +70,31 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
     # taking the first and the last of each makes it always two, and per row the span
     # is the larger of two lower bounds to the smaller of two upper ones.
     eps = -1e-9
+    if len(live) and live[-1] - live[0] + 1 == len(live):
+        live = slice(live[0], live[-1] + 1)  # all of a batch: views, not gathers
     al, bl, cl = a[live], b[live], c[live]
     with np.errstate(divide="ignore", invalid="ignore"):
         slope, icpt = (-bl / al).ravel(), ((eps - cl) / al).ravel()
     nrow = y1[live] - y0[live] + 1
     run, first = _runs(nrow)
-    f = live.take(run)
+    f = (np.arange(live.start, live.stop) if isinstance(live, slice) else live).take(run)
     y = np.arange(len(run)) + (y0[live] - first).take(run)
-    # Per face the slopes and intercepts of the two lower bounds then the two upper ones,
-    # four to a row, repeated down its rows in one call (32-byte rows are a fast case of
-    # np.repeat; a call per column cost more than the arithmetic).
-    at = 3 * np.arange(len(live))
-    pick = []
+    yc = y + 0.5
+    at = 3 * np.arange(len(nrow))
+    bounds = []
     for side in (al > 0, al < 0):
         s0, s1, s2 = side[:, 0], side[:, 1], side[:, 2]
         # The first and the last edge of the kind (as argmax: 0 and 2 when there is none).
-        pick += [at + np.where(s0, 0, np.where(s1, 1, np.where(s2, 2, 0))),
-                 at + np.where(s2, 2, np.where(s1, 1, np.where(s0, 0, 2)))]
-    pick = np.stack(pick, axis=1)
-    bounds = (np.repeat(slope.take(pick), nrow, axis=0) * (y + 0.5)[:, None]
-              + np.repeat(icpt.take(pick), nrow, axis=0))
-    lo = np.maximum(bounds[:, 0], bounds[:, 1])
-    hi = np.minimum(bounds[:, 2], bounds[:, 3])
+        for k in (at + np.where(s0, 0, np.where(s1, 1, np.where(s2, 2, 0))),
+                  at + np.where(s2, 2, np.where(s1, 1, np.where(s0, 0, 2)))):
+            k = k.take(run)  # the bound's edge on each of the face's rows
+            bounds.append(slope.take(k) * yc + icpt.take(k))
+    lo = np.maximum(bounds[0], bounds[1])
+    hi = np.minimum(bounds[2], bounds[3])
     xa = np.maximum(np.ceil(lo - 0.5), x0.take(f)).astype(np.int64)
     xb = np.minimum(np.floor(hi - 0.5), x1.take(f)).astype(np.int64)
-    keep = xb >= xa
-    return f[keep], y[keep], xa[keep], xb[keep]
+    keep = np.flatnonzero(xb >= xa)
+    return f.take(keep), y.take(keep), xa.take(keep), xb.take(keep)
 
 
 def _batched_spans(spans, live):
@@ -277,8 +276,8 @@ def _capsule_spans(px0, py0, vx0, vy0, reach, live, x0, x1, y0, y1):
     hi = np.maximum(xa, xb) + rg
     xa = np.maximum(np.ceil(lo - 0.5), x0.take(g)).astype(np.int64)
     xb = np.minimum(np.floor(hi - 0.5), x1.take(g)).astype(np.int64)
-    keep = xb >= xa
-    return g[keep], y[keep], xa[keep], xb[keep]
+    keep = np.flatnonzero(xb >= xa)
+    return g.take(keep), y.take(keep), xa.take(keep), xb.take(keep)
 
 
 def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
