@@ -230,7 +230,8 @@ def face_planes(xy, faces, values, edges=None):
     ----------
     xy : (n, 2) float, pixels
     faces : (m, 3) int
-    values : (n, k) float
+    values : (k, n) float
+        One row per value.
     edges : (a, b, c), optional
         :func:`edge_functions` of ``xy[faces]``, when the caller has them.
 
@@ -244,7 +245,7 @@ def face_planes(xy, faces, values, edges=None):
     """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     a, b, c = edge_functions(np.asarray(xy, dtype=np.float64)[faces]) if edges is None else edges
-    vt = np.ascontiguousarray(np.asarray(values, dtype=np.float64).T)
+    vt = np.ascontiguousarray(values, dtype=np.float64)
     q = [vt[:, faces[:, j]] for j in range(3)]  # (k, m) per corner
     out = np.empty((len(vt), 3, len(faces)), np.float32)
     for i, e in enumerate((a, b, c)):
