@@ -59,7 +59,10 @@ def atomic_write(path, data):
 
 
 def _png_chunk(kind, data):
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    """A PNG chunk as a list of byte strings: joined once by the caller, so the data (a
+    few MB of IDAT) is copied once, and its checksum runs on it in place."""
+    crc = zlib.crc32(data, zlib.crc32(kind))
+    return [struct.pack(">I", len(data)), kind, data, struct.pack(">I", crc)]
 
 
 def png_bytes(image, level=1):
@@ -82,13 +85,13 @@ def png_bytes(image, level=1):
     mv = memoryview(raw)
     rows = b"\0".join([b""] + [mv[i * stride:(i + 1) * stride] for i in range(h)])
     idat = zlib.compress(rows, level)
-    out = [b"\x89PNG\r\n\x1a\n",
-           _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, color_type, 0, 0, 0))]
+    out = [b"\x89PNG\r\n\x1a\n"]
+    out += _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, color_type, 0, 0, 0))
     dpi = image.info.get("dpi")
     if dpi:
         ppm = [int(round(d / 0.0254)) for d in dpi]
-        out.append(_png_chunk(b"pHYs", struct.pack(">IIB", ppm[0], ppm[1], 1)))
-    out += [_png_chunk(b"IDAT", idat), _png_chunk(b"IEND", b"")]
+        out += _png_chunk(b"pHYs", struct.pack(">IIB", ppm[0], ppm[1], 1))
+    out += _png_chunk(b"IDAT", idat) + _png_chunk(b"IEND", b"")
     return b"".join(out)
 
 

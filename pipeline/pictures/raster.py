@@ -215,7 +215,8 @@ def pixel_barycentrics(xy, faces, face_id):
     rows, cols = np.nonzero(face_id >= 0)
     face = face_id[rows, cols].astype(np.int64)
     # Coefficients once per face, then one gather per pixel.
-    coef = np.concatenate(edge_functions(np.asarray(xy, dtype=np.float64)[np.asarray(faces)]), axis=1)
+    coef = np.concatenate(edge_functions(np.asarray(xy, dtype=np.float64)[np.asarray(faces)]),
+                          axis=1)
     k = coef[face]
     w = k[:, 0:3] * (cols[:, None] + 0.5) + k[:, 3:6] * (rows[:, None] + 0.5) + k[:, 6:9]
     w = np.clip(np.nan_to_num(w, nan=1.0 / 3), 0.0, 1.0)

@@ -146,11 +146,12 @@ def _coverage(pxy, depth, faces, shape, ss, edges=None):
     """Which face each pixel shows, where to sample it, and how much of it is covered.
 
     pxy : (n, 2) px; depth : (n,); faces : (m, 3); shape : (H, W); ss : samples per
-    pixel side; edges : :func:`edge_functions` of ``pxy[faces]``, optional. Returns face (H, W) int (-1 where nothing covers it), sample (H, W, 2)
-    float32: the (x, y) offset within the pixel of a sample centre that face covers
-    (sampling inside the face matters on the silhouette, where a face seen edge-on
-    extrapolates to nonsense a fraction of a pixel outside it), and cover (H, W) float32
-    in [0, 1], the covered share of the pixel. Inside the silhouette a pixel is covered
+    pixel side; edges : :func:`edge_functions` of ``pxy[faces]``, optional. Returns face
+    (H, W) int (-1 where nothing covers it), sample (H, W, 2) float32: the (x, y) offset
+    within the pixel of a sample centre that face covers (sampling inside the face
+    matters on the silhouette, where a face seen edge-on extrapolates to nonsense a
+    fraction of a pixel outside it), and cover (H, W) float32 in [0, 1], the covered
+    share of the pixel. Inside the silhouette a pixel is covered
     or not, so one sample at its centre decides; only the pixels along the silhouette
     (and the faces reaching them) are rasterised again at ``ss`` x for their coverage:
     a fraction of the work of rasterising the whole mesh at ``ss`` x.
