@@ -15,6 +15,7 @@ import numpy as np
 from pipeline.input.simplify import simplify
 from pipeline.layout import keep, local
 from pipeline.layout.fit import fit_height, scaled
+from pipeline.layout.fit import program_relief as fit_relief
 from pipeline.layout.reach import reach
 from pipeline.problems import INVALID_AREA_WARN
 
@@ -160,6 +161,30 @@ def _removed(fit, hf, fitted_hf):
     fit.removed_p90_mm = float(np.percentile(inside, 90))
     if fit.applied_smooth_mm is not None and isinstance(fit.local, dict):
         fit.local["moved_share"] = round(float((inside > 0.1).mean()), 4)
+
+
+def program_relief(result, opts, profile, held_smooth_mm=None):
+    """Where the plan chose to smooth the relief (the fit's global smoothing, or the
+    smoothing that holds, ``held_smooth_mm``), the relief its curvature program reads:
+    the input as validated smoothed only ``curvature.program_smoothing`` as much, lowered
+    as the fit lowered it. None where the plan smoothed nothing of its own or the
+    profile asks for the target itself.
+
+    The smoothing takes out the slopes and the excess length the layout cannot lay out;
+    the finer relief's curvature still programs the sheet closer to the file (half the
+    fit's smoothing, the tiles dropped without a height at their native size: the
+    Vancouver tile 2.45 mm from the file instead of 2.85, the coast tile 5.15 instead of
+    5.54, the 175 mm rough terrain 1.58 instead of 1.88; each as printable, and 0.19 %,
+    0.46 % and 0.58 % of its diameter from its target instead of 0.59 %, 0.49 % and
+    0.71 %)."""
+    fit, share = result.fit, profile.curvature.program_smoothing
+    smooth = held_smooth_mm
+    if fit is not None and fit.local is None and fit.applied_smooth_mm is not None:
+        smooth = fit.applied_smooth_mm
+    if smooth is None or share >= 1.0:
+        return None
+    scale = 1.0 if fit is None or fit.applied_scale is None else fit.applied_scale
+    return fit_relief(result.validated, opts["min_prominence_mm"], smooth, share, scale)
 
 
 def take_hold(result, sidecar, plan_again):

@@ -43,6 +43,9 @@ class Plan:
     curvature: object = None
     reach: dict = None
     fit: object = None
+    # The relief the curvature program reads, where the plan smoothed the target
+    # (:func:`pipeline.fitting.program_relief`); None: the target itself.
+    relief: object = None
     inverted: dict = None
     validated: object = None
     problems: list = field(default_factory=list)
@@ -124,6 +127,7 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None, held_s
     given = hf
     layout = method_for(profile.flatten.method)
     hf = result.hf = layout.prepare(result, hf, profile, sidecar, opts, stage, timing, force_fit)
+    result.relief = fitting.program_relief(result, opts, profile, held_smooth_mm)
     layout.sheet(result, hf, profile, path, stage, timing, opts)
     layout.after(result, hf, profile, sidecar, opts, timing)
     result.inverted = inverted.settled_inverted(result.sim, result.mesh)

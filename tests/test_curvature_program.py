@@ -387,3 +387,25 @@ def test_the_twist_added_to_the_settled_sheet_rests_where_a_flat_start_with_it_d
                                tensor_rest(flat.xy, mesh.faces, (A + B) / 2), h,
                                theta_rest=prog.theta_rest, pop=BATH_BUMP)
     assert sim.mean_displacement_mm == pytest.approx(from_flat.mean_displacement_mm, rel=0.02)
+
+
+def test_a_program_reads_its_curvature_from_the_relief_it_is_given():
+    """The plan's target may be smoothed more than the relief its program reads
+    (:func:`pipeline.fitting.program_relief`): the sheet is laid out on the target, its
+    curvature is the relief's."""
+    from pipeline.geometry import HeightField
+    from pipeline.layout.free import flatten_free
+    from pipeline.meshing.grid import build_grid_mesh
+    from pipeline.simulation.programmed import Programs
+    prof = load_profile("generic-0.5mm")
+    hf = shapes.dome(diameter_mm=60.0, height_mm=6.0)
+    y, x = np.mgrid[0:hf.z.shape[0], 0:hf.z.shape[1]] * hf.pixel_mm
+    relief = HeightField(hf.z + 0.5 * np.sin(2 * np.pi * x / 15.0), hf.pixel_mm)
+    mesh = build_grid_mesh(hf, 2.0)
+    lim = prof.shrink_limits
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=20)
+    plain = Programs(hf, mesh, flat, prof).K
+    read = Programs(hf, mesh, flat, prof, relief=relief)
+    laid = np.clip(flat.sigma, lim.s_min, lim.s_max)
+    assert np.allclose(read.K, curvature.target_tensor(relief, mesh, flat, laid))
+    assert not np.allclose(read.K, plain)

@@ -185,6 +185,9 @@ def test_a_narrow_spike_is_smoothed_and_the_relief_kept(tmp_path):
     assert "smoothed %g mm" % fit["applied_smooth_mm"] in smoothed["message"]
     assert "fit: relief" in smoothed["fix"]
     assert "fit.lowered" not in [p["code"] for p in plan.problems]
+    # Its curvature program reads the input smoothed only half as much.
+    off = [float(np.nanmean(np.abs(z - plan.validated.z))) for z in (plan.relief.z, plan.hf.z)]
+    assert 0 < off[0] < 0.7 * off[1]
     assert "smoothed %g mm to form" % fit["applied_smooth_mm"] in planner.preview_title(plan)
     assert "smoothed %g mm by the fit" % fit["applied_smooth_mm"] in planner._input_note(plan)
     # What would form the spike as given, said in the warning: its slopes as given are
@@ -325,3 +328,33 @@ def test_plan_fit_prints_the_reach_and_the_smoothing_applied(capsys):
     assert "reach p90" in out and "1.52" in out and "0.31" in out
     assert "applied: smooth_mm 4 at the relief as given; it moves the surface by 2.50 mm" in out
     assert "1.52 of the most the layers can curl" in out and "do not form" in out
+
+
+def test_the_curvature_program_reads_the_relief_smoothed_half_as_much_as_the_plan_did():
+    """Where the plan chose a smoothing (the fit's, or the one that holds) its curvature
+    program reads the input smoothed ``curvature.program_smoothing`` as much, lowered as
+    the fit lowered it; where the plan chose none, or the profile asks for the target
+    itself, it reads the target."""
+    from types import SimpleNamespace
+
+    from pipeline.fitting import program_relief
+    from pipeline.input.simplify import simplify
+    given = _hill_with_a_spike()
+    opts = {"min_prominence_mm": 0.5}
+
+    def plan(fit=None):
+        return SimpleNamespace(fit=fit, validated=given)
+    fitted = SimpleNamespace(local=None, applied_smooth_mm=4.0, applied_scale=1.0)
+    got = program_relief(plan(fitted), opts, PROFILE)
+    assert np.array_equal(got.z, simplify(given, 0.5, 2.0)[0].z, equal_nan=True)
+    held = program_relief(plan(), opts, PROFILE, held_smooth_mm=6.0)
+    assert np.array_equal(held.z, simplify(given, 0.5, 3.0)[0].z, equal_nan=True)
+    lowered = SimpleNamespace(local=None, applied_smooth_mm=None, applied_scale=0.5)
+    low = program_relief(plan(lowered), opts, PROFILE, held_smooth_mm=6.0)
+    assert (np.nanmax(low.z) - np.nanmin(low.z)) == pytest.approx(
+        0.5 * (np.nanmax(held.z) - np.nanmin(held.z)), rel=0.01)
+    assert program_relief(plan(lowered), opts, PROFILE) is None
+    assert program_relief(plan(), opts, PROFILE) is None
+    whole = dataclasses.replace(PROFILE, curvature=dataclasses.replace(
+        PROFILE.curvature, program_smoothing=1.0))
+    assert program_relief(plan(fitted), opts, whole) is None

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.geometry import HeightField
+from pipeline.input.simplify import simplify
 from pipeline.layout.free import flatten_free
 from pipeline.meshing.grid import build_grid_mesh
 
@@ -138,6 +139,14 @@ def least_smoothing(forms, smooth_mm, cap_mm=None, step_mm=0.5):
             return float(mid) if below < mid < s and forms(float(mid)) else float(s)
         below, s = s, s * 2.0
     return None
+
+
+def program_relief(validated, min_prominence_mm, smooth_mm, share, scale=1.0):
+    """The relief the curvature program of a target smoothed ``smooth_mm`` (from
+    ``validated``, as the plan smooths it) reads: ``validated`` smoothed ``share`` as
+    much, lowered to ``scale``. See :func:`pipeline.fitting.program_relief`."""
+    relief = simplify(validated, min_prominence_mm, smooth_mm * share)[0]
+    return relief if scale >= 1.0 else scaled(relief, scale)
 
 
 def scaled(hf, scale):

@@ -56,14 +56,17 @@ class FreeMethod:
                                                    iterations=fp.free_iterations)
         # Only curvature along the paths can be programmed: where the layout leaves the
         # direction free, the paths turn the way the target bends most.
-        flat = curvature.bend_free_directions(hf, mesh, flat, FREE_BELOW)
+        # The directions turn as the relief the program reads bends (finer than the target
+        # where the plan smoothed it); the reach reported is the target's.
+        relief = hf if result.relief is None else result.relief
+        flat = curvature.bend_free_directions(relief, mesh, flat, FREE_BELOW)
         result.flat = flat
         result.reach = reach(hf, mesh, flat, profile)
         timing["flatten"] = time.perf_counter() - t
         result.fold_fraction = fold_area_fraction(flat.xy, mesh.faces)
         result.problems += free_layout_problems(flat, result.fold_fraction)
         t = stage("simulate", "forward simulation of the flat sheet (thin shell)")
-        result.curvature, sim = simulate_free(hf, mesh, flat, profile)
+        result.curvature, sim = simulate_free(hf, mesh, flat, profile, relief=result.relief)
         result.sim = sim
         result.problems += simulation_problems(sim)
         timing["simulate"] = time.perf_counter() - t

@@ -194,6 +194,10 @@ class CurvatureParams:
     # the bilayer's is the best guess (a measured `bilayer_c` carries over).
     across_c: float = _num(None, hi=20.0, nullable=True)
     across_status: str = _str("uncalibrated", choices=("uncalibrated", "measured"))
+    # Where the plan smoothed the relief (the fit, or the smoothing that holds), the
+    # program reads it smoothed only this share as much (1: the target as smoothed);
+    # see :data:`pipeline.layout.curvature.PROGRAM_DETAIL`.
+    program_smoothing: float = _num(0.5, hi=1.0)
 
     @property
     def across_constant(self):

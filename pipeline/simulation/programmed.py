@@ -41,7 +41,7 @@ RELAY_PASSES = 2
 WARM_ITERATIONS = 10
 
 
-def simulate_free(hf, mesh, flat, profile, twist=True, across=True, tally=None):
+def simulate_free(hf, mesh, flat, profile, twist=True, across=True, tally=None, relief=None):
     """Simulate the sheet the free layout ``flat`` of ``mesh`` (the target, from ``hf``)
     prints with ``profile``: settled from (almost) flat with the bilayer program; from
     there, side by side (:func:`_tried`), with ``twist`` (and the profile's
@@ -51,8 +51,9 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, tally=None):
     turned apart too), kept where it rests :data:`ACROSS_GAIN` closer. Returns
     (:class:`pipeline.layout.curvature.CurvatureProgram`, with ``twist`` and ``across``
     the comparisons or None, the simulation result). ``tally``: a list that gets the
-    iterations of every settle."""
-    make = Programs(hf, mesh, flat, profile, tally)
+    iterations of every settle; ``relief``: the HeightField the program reads the
+    target's curvature from, where not ``hf`` (:func:`pipeline.layout.curvature.relief`)."""
+    make = Programs(hf, mesh, flat, profile, tally, relief)
     programmed, settle, cp = make.programmed, make.settle, make.cp
     program = bilayer = programmed(0.0)
     sim = settle(program)
@@ -92,7 +93,7 @@ class Programs:
     ``mesh``, made one at a time: the target's curvature read once (``K``), the shrink
     with room to bend (``sigma``) and the sheet's thickness (``thick``) shared by all."""
 
-    def __init__(self, hf, mesh, flat, profile, tally=None):
+    def __init__(self, hf, mesh, flat, profile, tally=None, relief=None):
         self.mesh, self.flat, self.profile = mesh, flat, profile
         self.tally = [] if tally is None else tally
         lim = profile.shrink_limits
@@ -100,8 +101,10 @@ class Programs:
         # The printed sheet shrinks only within the material's range (the G-code clamps
         # the thickness the same way), so the simulation shrinks by the clamped sigma.
         laid = np.clip(flat.sigma, lim.s_min, lim.s_max)
-        # One read of the target serves the first layout and every relaid one.
-        self.derivs = curvature.surface_derivatives(hf, curvature.PROGRAM_SMOOTH_MM)
+        # One read of the target serves the first layout and every relaid one; its
+        # curvature from ``relief`` where the plan gives one (:func:`curvature.relief`).
+        self.derivs = curvature.surface_derivatives(hf if relief is None else relief,
+                                                    curvature.PROGRAM_SMOOTH_MM)
         self.K = curvature.target_tensor(hf, mesh, flat, laid, derivs=self.derivs)
         # Where the layout leaves no shrink to bend with, a little is added along d.
         self.sigma = curvature.room_for(self.K, flat.direction, laid, self.thickness(laid),

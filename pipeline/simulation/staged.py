@@ -47,13 +47,14 @@ FINER = 1.8
 
 
 def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=COARSE_MM,
-                  reference=False):
+                  reference=False, relief=None):
     """As :func:`pipeline.simulation.programmed.simulate_free`, the program chosen on a
     sheet of ``coarse_mm`` triangles (:func:`coarse_sheet`) and only it made on ``mesh``
     and settled there once, from the coarse sheet's rest carried onto it. Where ``mesh``
     is not :data:`FINER` times finer (or ``coarse_mm`` is None) the trials run on it.
     With ``reference`` the program chosen settles on ``mesh`` from the bath instead
-    (:func:`reference_settle`), for comparison.
+    (:func:`reference_settle`), for comparison. ``relief``: as
+    :func:`pipeline.simulation.programmed.simulate_free`'s.
 
     Returns (CurvatureProgram with the coarse sheet's ``twist`` and ``across``
     comparisons, SimResult of ``mesh``: ``coarse_iterations`` those of the coarse sheet's
@@ -67,23 +68,25 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=CO
         except MeshingError:
             coarse = None       # a footprint too narrow for the coarse grid
     if coarse is None:
-        return programmed.simulate_free(hf, mesh, flat, profile, twist=twist, across=across)
+        return programmed.simulate_free(hf, mesh, flat, profile, twist=twist, across=across,
+                                        relief=relief)
     cmesh, cflat = coarse
     tally = []
     cprog, csim = programmed.simulate_free(hf, cmesh, cflat, profile, twist=twist,
-                                           across=across, tally=tally)
+                                           across=across, tally=tally, relief=relief)
     t1, c1 = time.perf_counter(), time.process_time()
     which = programmed.choice_of(cprog)
     if reference:
-        prog, settle = _chosen(hf, mesh, flat, profile, which, twist)
-        sim = reference_settle(hf, mesh, flat, profile, which, twist, program=(prog, settle))
+        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, relief=relief)
+        sim = reference_settle(hf, mesh, flat, profile, which, twist, program=(prog, settle),
+                               relief=relief)
     else:
         start = None
         if WARM_RELAY and which == "across_relaid" and cprog.layout is not None:
             # The coarse sheet's relaid layout, as its move from the first one.
             start = flat.xy + _interpolated(_xy(cmesh), cmesh.faces, cprog.layout.xy - cflat.xy,
                                             _xy(mesh))
-        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, start)
+        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, start, relief)
         sim = settle(start=carried(cmesh, csim.vertices, mesh.vertices),
                      rest_tol=FINE_REST_TOL)
     # The comparisons' figures are the coarse sheet's: they say on which sheet.
@@ -96,12 +99,12 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=CO
     return prog, sim
 
 
-def reference_settle(hf, mesh, flat, profile, which, twist=True, program=None):
+def reference_settle(hf, mesh, flat, profile, which, twist=True, program=None, relief=None):
     """The program ``which`` (:data:`pipeline.simulation.programmed.CHOICES`) settled on
     ``mesh`` the way the trials settle the one they keep: the bilayer from the bath,
     then ``which`` from the bilayer's rest (no probe cap). ``program``: (program,
     ``settle``) of ``which`` already made on ``mesh``. Returns SimResult."""
-    make = programmed.Programs(hf, mesh, flat, profile)
+    make = programmed.Programs(hf, mesh, flat, profile, relief=relief)
     sim = make.settle(make.programmed(0.0))
     if which == "bilayer":
         return sim
@@ -109,8 +112,9 @@ def reference_settle(hf, mesh, flat, profile, which, twist=True, program=None):
     return programmed._continued(settle(start=sim.vertices), sim)
 
 
-def _chosen(hf, mesh, flat, profile, which, twist, start=None):
-    return programmed.Programs(hf, mesh, flat, profile).chosen(which, twist, start)
+def _chosen(hf, mesh, flat, profile, which, twist, start=None, relief=None):
+    return programmed.Programs(hf, mesh, flat, profile, relief=relief).chosen(which, twist,
+                                                                            start)
 
 
 def _xy(mesh):
