@@ -131,7 +131,7 @@ def _span_pixels(row_start, xa, xb):
     return k + (row_start + xa - first).take(span), k + (xa - first).take(span), span
 
 
-def rasterize_triangles(xy, depth, faces, shape, edges=None):
+def rasterize_triangles(xy, depth, faces, shape, edges=None, coverage=False):
     """Z-buffered coverage: which face is visible at each pixel.
 
     Both windings are drawn (no back-face culling).
@@ -147,15 +147,19 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None):
     shape : (height, width)
     edges : (a, b, c), optional
         :func:`edge_functions` of ``xy[faces]``, when the caller has them.
+    coverage : bool
+        Only whether some face covers each pixel: no keys, no z-buffer.
 
     Returns
     -------
     face_id : (height, width) int32
-        Index of the nearest face covering each pixel centre, -1 where none.
+        Index of the nearest face covering each pixel centre, -1 where none; with
+        ``coverage`` a (height, width) bool, True where a face covers the centre.
     """
     height, width = shape
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    face_id = np.full(height * width, -1, dtype=np.int32)
+    face_id = (np.zeros(height * width, bool) if coverage
+               else np.full(height * width, -1, dtype=np.int32))
     if len(faces) == 0:
         return face_id.reshape(shape)
     xy = np.asarray(xy, dtype=np.float64)
@@ -176,6 +180,11 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None):
     # 31 bits it takes in the key.
     zmin, zmax = z[live].min(), z[live].max()
     flat = not zmax > zmin  # one depth (a 2-D layout): the lowest face index wins
+    if coverage:
+        for f, y, xa, xb in _batched_spans(lambda part: _spans(a, b, c, part, x0, x1, y0, y1),
+                                           live):
+            face_id[_span_pixels(y * width, xa, xb)[0]] = True
+        return face_id.reshape(shape)
     if not flat:
         zscale = (2 ** 31 - 2) / max(zmax - zmin, 1e-12)
         # Sums written out: a reduction along a 3-long axis runs a loop per face.
@@ -262,18 +271,24 @@ def _capsule_spans(px0, py0, vx0, vy0, reach, live, x0, x1, y0, y1):
     px0, py0, vx0, vy0 : (s,) start and direction (p1 - p0), pixels; reach : (s,) px;
     live : segments to draw; x0..y1 : (s,) their clipped pixel boxes. Returns (segment,
     row, first, last column), each (r,) int64, empty spans dropped.
+
+    float32 is enough (half the memory traffic): a centre just outside a span is at
+    least ``reach`` from the segment, so one that rounding moves across the span's end
+    is within a thousandth of a pixel of that, and its coverage rounds to nothing.
     """
     nrow = y1[live] - y0[live] + 1
     run, first = _runs(nrow)
     g = live.take(run)
     y = np.arange(len(run)) + (y0[live] - first).take(run)
     # The stretch of the centre line within reach of the row, widened by reach.
-    py, vy, px, vx, rg = (q.take(g) for q in (py0, vy0, px0, vx0, reach))
+    py, vy, px, vx, rg = (q.astype(np.float32, copy=False).take(g)
+                          for q in (py0, vy0, px0, vx0, reach))
+    yc = y.astype(np.float32) + np.float32(0.5)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ta = np.where(vy != 0, (y + 0.5 - rg - py) / vy, 0.0)
-        tb = np.where(vy != 0, (y + 0.5 + rg - py) / vy, 1.0)
-    xa = px + np.clip(np.minimum(ta, tb), 0.0, 1.0) * vx
-    xb = px + np.clip(np.maximum(ta, tb), 0.0, 1.0) * vx
+        ta = np.where(vy != 0, (yc - rg - py) / vy, np.float32(0))
+        tb = np.where(vy != 0, (yc + rg - py) / vy, np.float32(1))
+    xa = px + np.clip(np.minimum(ta, tb), np.float32(0), np.float32(1)) * vx
+    xb = px + np.clip(np.maximum(ta, tb), np.float32(0), np.float32(1)) * vx
     lo = np.minimum(xa, xb) - rg
     hi = np.maximum(xa, xb) + rg
     xa = np.maximum(np.ceil(lo - 0.5), x0.take(g)).astype(np.int64)
@@ -334,11 +349,12 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
             dict(qx=0.5 - px0, qy=0.5 - py0, ux=ux, uy=uy, vx=vx, vy=vy, reach=reach,
                  fade=fade).items()}
     faded = bool((fade < 1).any())
+    spans_at = [q.astype(np.float32) for q in (px0, py0)] + [cols["vx"], cols["vy"], cols["reach"]]
     # Only the rows the segments reach: markers and short strokes need no full-canvas pass.
     top = int(y0[live].min())
     best = np.full((int(y1[live].max()) + 1 - top) * width, -1, dtype=np.int64)
     for g, y, xa, xb in _batched_spans(
-            lambda part: _capsule_spans(px0, py0, vx, vy, reach, part, x0, x1, y0, y1), live):
+            lambda part: _capsule_spans(*spans_at, part, x0, x1, y0, y1), live):
         pix, x, span = _span_pixels((y - top) * width, xa, xb)
         rep = lambda k: cols[k].take(g).take(span)
         # Offsets from p0 in float32 (small numbers); t the nearest point's position.

@@ -110,7 +110,8 @@ def _face_sigma(n, faces, printing_edges, sigma):
     """Shrink per face for the background tint: the mean of its printing edges;
     faces without one (around fan centres) take the mean of their vertices' faces."""
     fe = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1).reshape(-1, 2)
-    if len(printing_edges):
+    # A free layout's strokes end at points of their own, never at a face's corner.
+    if len(printing_edges) and len(faces) and printing_edges.min() <= faces.max():
         idx = edge_index(printing_edges, fe).reshape(-1, 3)
     else:
         idx = np.full((len(faces), 3), -1)
@@ -172,7 +173,6 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     lw = float(line_px) if line_px else float(np.clip(0.4 * spacing_px, 1.0, 3.5))
 
     if faces is not None and len(faces):
-        fid = rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w))
         face_sigma = _face_sigma(len(xy), faces, edges, sigma)
         # Faces are a few px across, so a flat tint per face reads as a smooth field.
         tint = 0.28 * colormap(face_sigma, s_min, s_max, "shrink") + 0.72 * 246.0
@@ -180,6 +180,13 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
         # sheet covers most of the canvas, so this beats scattering the covered ones.
         # float32: half the memory traffic of the drawing that follows.
         table = np.vstack([tint, np.full((1, 3), WHITE)]).astype(np.float32)
+        if (tint == tint[0]).all():
+            # One tint (a free layout's strokes share no edge with the faces, whose
+            # shrink is then unknown): only whether a face covers a pixel matters.
+            fid = np.where(rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w),
+                                               coverage=True), 0, -1)
+        else:
+            fid = rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w))
         canvas = table.take(fid, axis=0)
         b = _boundary_edges(faces)
         draw_segments(canvas, p[b[:, 0]], p[b[:, 1]], (95, 95, 100), max(1.0, 0.6 * lw))
