@@ -28,8 +28,8 @@ on the input's grid, away from the outline by twice that scale.
 """
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator
 from scipy.ndimage import binary_erosion, map_coordinates
+from scipy.spatial import Delaunay
 
 from pipeline.input.simplify import smooth
 from pipeline.simulation.forward import align
@@ -79,9 +79,23 @@ def sheet_heights(aligned, hf):
     convex hull or the footprint."""
     rows, cols = hf.z.shape
     rr, cc = np.mgrid[0:rows, 0:cols]
-    xy = hf.xy(rr, cc).reshape(-1, 2)
-    z = LinearNDInterpolator(aligned[:, :2], aligned[:, 2])(xy).reshape(rows, cols)
-    return np.where(np.isfinite(hf.z), z, np.nan)
+    z = _linear(aligned[:, :2], aligned[:, 2], hf.xy(rr, cc).reshape(-1, 2))
+    return np.where(np.isfinite(hf.z), z.reshape(rows, cols), np.nan)
+
+
+def _linear(points, values, at):
+    """Piecewise-linear interpolation of ``values`` ((n,)) at ``points`` ((n, 2)) over
+    their Delaunay triangles, at ``at`` ((k, 2)): (k,), NaN outside the hull. What
+    scipy.interpolate's LinearNDInterpolator does, whose import cost each plan 0.17 s."""
+    tri = Delaunay(points)
+    simplex = tri.find_simplex(at)
+    inside = simplex >= 0
+    T = tri.transform[simplex[inside]]                       # (k, 3, 2)
+    b = np.einsum("kij,kj->ki", T[:, :2], at[inside] - T[:, 2])
+    w = np.column_stack([b, 1.0 - b.sum(axis=1)])
+    out = np.full(len(at), np.nan)
+    out[inside] = np.einsum("ki,ki->k", values[tri.simplices[simplex[inside]]], w)
+    return out
 
 
 def mean_curvature(z, pixel_mm, sigma_mm):
