@@ -13,6 +13,8 @@ cheaper than gathering them. No Python loop runs over primitives; the loops run 
 memory chunks.
 """
 
+import sys
+
 import numpy as np
 
 # Pixels evaluated per chunk: the temporaries (a few MB) stay in cache, which is faster
@@ -158,10 +160,9 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None, coverage=False):
     """
     height, width = shape
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    face_id = (np.zeros(height * width, bool) if coverage
-               else np.full(height * width, -1, dtype=np.int32))
+    none = lambda: (np.zeros(shape, bool) if coverage else np.full(shape, -1, dtype=np.int32))
     if len(faces) == 0:
-        return face_id.reshape(shape)
+        return none()
     xy = np.asarray(xy, dtype=np.float64)
     px, py = xy[:, 0][faces], xy[:, 1][faces]
     z = np.asarray(depth, dtype=np.float64)[faces]
@@ -175,16 +176,17 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None, coverage=False):
     x0, x1, y0, y1 = _boxes(lo(px), hi(px), lo(py), hi(py), width, height)
     live = np.flatnonzero(ok & (x1 >= x0) & (y1 >= y0))
     if len(live) == 0:
-        return face_id.reshape(shape)
+        return none()
     # Depth as a plane over the screen: z = az x + bz y + cz per face, scaled to the
     # 31 bits it takes in the key.
     zmin, zmax = z[live].min(), z[live].max()
     flat = not zmax > zmin  # one depth (a 2-D layout): the lowest face index wins
     if coverage:
+        hit = np.zeros(height * width, bool)
         for f, y, xa, xb in _batched_spans(lambda part: _spans(a, b, c, part, x0, x1, y0, y1),
                                            live):
-            face_id[_span_pixels(y * width, xa, xb)[0]] = True
-        return face_id.reshape(shape)
+            hit[_span_pixels(y * width, xa, xb)[0]] = True
+        return hit.reshape(shape)
     if not flat:
         zscale = (2 ** 31 - 2) / max(zmax - zmin, 1e-12)
         # Sums written out: a reduction along a 3-long axis runs a loop per face.
@@ -201,7 +203,9 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None, coverage=False):
             key |= np.clip(zq, 0, 2 ** 31 - 2).astype(np.int64) << 32
         np.minimum.at(best, pix, key)
     # The face is the key's low 32 bits; where none won they are all ones: -1 as int32.
-    return (best & 0xFFFFFFFF).astype(np.int32).reshape(shape)
+    # Read in place as the int32 half of each key (one strided copy, not two passes).
+    low = best.view(np.int32)[0 if sys.byteorder == "little" else 1::2]
+    return np.ascontiguousarray(low).reshape(shape)
 
 
 def pixel_barycentrics(xy, faces, face_id):
