@@ -12,7 +12,8 @@ import numpy as np
 from pipeline.errors import PipelineError
 from pipeline.input.simplify import simplify
 from pipeline.layout import curvature
-from pipeline.layout.fit import fit_height, least_smoothing, program_relief, scaled
+from pipeline.layout.fit import (fit_height, least_smoothing, program_relief, program_share,
+                                 scaled)
 from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
@@ -134,7 +135,7 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
         mesh = build_grid_mesh(hf, grid)
         flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
         # The curvature as the plan smoothed this much would program it.
-        share = profile.curvature.program_smoothing
+        share = program_share(profile)
         relief = (None if share >= 1.0 else
                   program_relief(validated, opts["min_prominence_mm"], smooth, share, scale))
         flat = curvature.bend_free_directions(hf if relief is None else relief, mesh, flat,

@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline.input.simplify import simplify
 from pipeline.layout import keep, local
-from pipeline.layout.fit import fit_height, scaled
+from pipeline.layout.fit import fit_height, program_share, scaled
 from pipeline.layout.fit import program_relief as fit_relief
 from pipeline.layout.reach import reach
 from pipeline.problems import INVALID_AREA_WARN
@@ -168,7 +168,7 @@ def program_relief(result, opts, profile, held_smooth_mm=None):
     smoothing that holds, ``held_smooth_mm``), the relief its curvature program reads:
     the input as validated smoothed only ``curvature.program_smoothing`` as much, lowered
     as the fit lowered it. None where the plan smoothed nothing of its own or the
-    profile asks for the target itself.
+    profile asks for the target itself (:func:`pipeline.layout.fit.program_share`).
 
     The smoothing takes out the slopes and the excess length the layout cannot lay out;
     the finer relief's curvature still programs the sheet closer to the file (half the
@@ -177,7 +177,7 @@ def program_relief(result, opts, profile, held_smooth_mm=None):
     5.54, the 175 mm rough terrain 1.58 instead of 1.88; each as printable, and 0.19 %,
     0.46 % and 0.58 % of its diameter from its target instead of 0.59 %, 0.49 % and
     0.71 %)."""
-    fit, share = result.fit, profile.curvature.program_smoothing
+    fit, share = result.fit, program_share(profile)
     smooth = held_smooth_mm
     if fit is not None and fit.local is None and fit.applied_smooth_mm is not None:
         smooth = fit.applied_smooth_mm

@@ -358,3 +358,7 @@ def test_the_curvature_program_reads_the_relief_smoothed_half_as_much_as_the_pla
     whole = dataclasses.replace(PROFILE, curvature=dataclasses.replace(
         PROFILE.curvature, program_smoothing=1.0))
     assert program_relief(plan(fitted), opts, whole) is None
+    # The local fit keeps what forms in the target itself.
+    local = dataclasses.replace(PROFILE, flatten=dataclasses.replace(
+        PROFILE.flatten, fit_smoothing="local"))
+    assert program_relief(plan(), opts, local, held_smooth_mm=6.0) is None

@@ -141,6 +141,16 @@ def least_smoothing(forms, smooth_mm, cap_mm=None, step_mm=0.5):
     return None
 
 
+def program_share(profile):
+    """How much of the plan's own smoothing the curvature program reads the relief at
+    (``curvature.program_smoothing``); 1 with the local fit, which keeps the detail that
+    forms in the target itself (with both, the Vancouver tile held at 2 mm instead of 3
+    and ended 3.0 % of its diameter from its target, past the printable limit)."""
+    if profile.flatten.fit_smoothing == "local":
+        return 1.0
+    return profile.curvature.program_smoothing
+
+
 def program_relief(validated, min_prominence_mm, smooth_mm, share, scale=1.0):
     """The relief the curvature program of a target smoothed ``smooth_mm`` (from
     ``validated``, as the plan smooths it) reads: ``validated`` smoothed ``share`` as
