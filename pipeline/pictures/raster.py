@@ -355,10 +355,13 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
             dict(qx=0.5 - px0, qy=0.5 - py0, ux=ux, uy=uy, vx=vx, vy=vy, reach=reach,
                  fade=fade).items()}
     faded = bool((fade < 1).any())
-    spans_at = [q.astype(np.float32) for q in (px0, py0)] + [cols["vx"], cols["vy"], cols["reach"]]
+    spans_at = [px0.astype(np.float32), py0.astype(np.float32), cols["vx"], cols["vy"],
+                cols["reach"]]
     # Only the rows the segments reach: markers and short strokes need no full-canvas pass.
     top = int(y0[live].min())
-    best = np.full((int(y1[live].max()) + 1 - top) * width, -1, dtype=np.int64)
+    # 0 where none: every key is above it (its coverage, at least 257 of 65535, sits in
+    # bits 32-47), and zeros need no pass to fill.
+    best = np.zeros((int(y1[live].max()) + 1 - top) * width, dtype=np.int64)
     for g, y, xa, xb in _batched_spans(
             lambda part: _capsule_spans(*spans_at, part, x0, x1, y0, y1), live):
         pix, x, span = _span_pixels((y - top) * width, xa, xb)
@@ -381,7 +384,7 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
 
 
 def _blend(canvas, top, best, col):
-    """Blend the winners ``best`` (packed keys of :func:`draw_segments`, -1 where none,
+    """Blend the winners ``best`` (packed keys of :func:`draw_segments`, 0 where none,
     rows from ``top`` on) into ``canvas``, a band of rows of about ``_CHUNK`` pixels at a
     time: the whole picture's at once held six colour arrays of every pixel drawn (a 175
     mm part's tool paths: 130 MB, the plan's peak)."""
@@ -391,15 +394,16 @@ def _blend(canvas, top, best, col):
     planes = [np.ascontiguousarray(col[:, c]) for c in range(3)]
     for k in range(0, len(best), band):
         key = best[k:k + band]
-        hit = key >= 0
+        hit = key > 0
         o = (top * width + k)
         if np.count_nonzero(hit) * 4 > len(key):
             # Mostly drawn (tool paths, the stress layout): blending every pixel of the
             # band in place beats gathering and scattering the drawn ones. Where nothing
-            # won, the coverage is 0 and the pixel keeps its value exactly. A channel at a
-            # time: the coverage broadcast over three channels makes numpy loop per pixel.
-            cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype) / 65535 * hit
-            seg = np.where(hit, key & 0xFFFFFFFF, 0)
+            # won, the key is 0: coverage 0 (of segment 0), and the pixel keeps its value
+            # exactly. A channel at a time: the coverage broadcast over three channels makes
+            # numpy loop per pixel.
+            cov = ((key >> 32) & 0xFFFF).astype(canvas.dtype) / 65535
+            seg = key & 0xFFFFFFFF
             for c in range(3):
                 old = flat[o:o + len(key), c]
                 old += cov * (planes[c].take(seg) - old)
