@@ -310,8 +310,8 @@ def toolpath_image(traces, sigma, s_min, s_max, path_width_mm, travel=None, px_p
                       stroke_width=2, stroke_fill=(255, 255, 255))
 
     n = len(sig)
-    d = p1 - p0
-    length_mm = float(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]).sum())
+    step = p1 - p0  # lengths written out: np.linalg.norm on (s, 2) rows loops a row at a time
+    length_mm = float(np.sqrt(step[:, 0] * step[:, 0] + step[:, 1] * step[:, 1]).sum())
     sub = (f"{counted(len(traces), 'trace')}  |  {n} segments  |  {length_mm / 1000:.2f} m of path per layer  |  "
            f"{len(t0)} travel moves")
     texts = _invalid_texts(int(high.sum()), int(low.sum()), n, s_min, s_max, "segments")

@@ -273,7 +273,7 @@ def _shadow(v, faces, cam, L, center, s, shape, k=4):
                          - np.minimum(np.minimum(q[:, 0], q[:, 1]), q[:, 2]))
     big = faces[ext > 1.0]
     if len(big):
-        mask |= rasterize_triangles(pxy, np.zeros(len(pxy)), big, (h, w)) >= 0
+        mask |= rasterize_triangles(pxy, np.zeros(len(pxy)), big, (h, w), coverage=True)
     m = Image.fromarray(np.where(mask, 70, 0).astype(np.uint8))
     m = m.filter(ImageFilter.GaussianBlur(max(2.0, 0.012 * w)))
     return np.asarray(m.resize((W, H), Image.BILINEAR))
