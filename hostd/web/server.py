@@ -50,9 +50,27 @@ class WebServer:
         if announcer is not None:
             announcer.close()
         server, self.server = self.server, None
-        if server is not None:
+        if server is None:
+            self.thread.join(2.0)
+            return
+        closed = threading.Event()
+
+        def close():
             server.close()
-        self.thread.join(2.0)
+            closed.set()
+        trigger = getattr(server, "trigger", None)
+        if trigger is not None and self.thread.is_alive():
+            # Closed in the loop's own thread, which the trigger wakes at once: closed from
+            # here, the loop slept on until its poll timed out (1 s) before it saw it.
+            try:
+                trigger.pull_trigger(close)
+            except OSError:
+                pass
+            else:
+                self.thread.join(2.0)
+        if not closed.is_set():
+            close()
+            self.thread.join(2.0)
 
 
 def public_url(host, port):
