@@ -34,19 +34,23 @@ def write_dome(path, diameter_mm=15, height_mm=3):
     hf = shapes.dome(diameter_mm=diameter_mm, height_mm=height_mm)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.save(path, hf.z)
+    # The sidecar first: written into a drop folder, the input must not settle without it.
     path.with_name(path.stem + ".yaml").write_text("pixel_mm: %r\nmethod: isoline\n"
                                                     % float(hf.pixel_mm))
+    np.save(path, hf.z)
     return path
 
 
 def write_config(folder, node_id="n1", printers=None, share=None, **extra):
-    """A hostd.yaml in ``folder``; the share (drop/outbox/done/failed) may be shared."""
+    """A hostd.yaml in ``folder``; the share (drop/outbox/done/failed) may be shared.
+
+    A file written into the drop folder is taken 0.2-0.25 s after its last write (settle_s,
+    scanned every poll_s): most tests wait for that once or more."""
     folder = Path(folder)
     share = Path(share or folder / "share")
     data = dict(node_id=node_id, drop_dir=str(share / "drop"), state_dir=str(folder / "state"),
                 outbox_dir=str(share / "outbox"), done_dir=str(share / "done"),
-                failed_dir=str(share / "failed"), settle_s=0.5, poll_s=0.2, heartbeat_s=0.5,
+                failed_dir=str(share / "failed"), settle_s=0.2, poll_s=0.05, heartbeat_s=0.5,
                 lease_s=30.0, stop_timeout_s=10.0,
                 printers=printers or [{"name": "p1", "profile": "generic-0.5mm",
                                        "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0",

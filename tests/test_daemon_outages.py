@@ -52,7 +52,7 @@ def test_the_store_maps_sqlite_full_to_its_own_code(tmp_path):
 
 def drop_dome(d, tmp_path, name):
     src = write_dome(tmp_path / "in" / name)
-    for f in (src, src.with_suffix(".yaml")):
+    for f in (src.with_suffix(".yaml"), src):
         shutil.copy(f, d.config.drop_dir / f.name)
 
 
