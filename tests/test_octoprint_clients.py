@@ -162,11 +162,11 @@ def get_page(url):
 
 
 def small_dome_profile(tmp_path):
-    """generic-0.5mm planning an input without a sidecar as a 25 mm dome by the paper's
+    """generic-0.5mm planning an input without a sidecar as a 15 mm dome by the paper's
     method: what the sidecar of write_dome says, for a client that sends no sidecar."""
     from pipeline.profiles.profile import find_profile
     data = yaml.safe_load(find_profile("generic-0.5mm").read_text())
-    data["defaults"]["size_mm"] = 25.0
+    data["defaults"]["size_mm"] = 15.0
     data["flatten"]["method"] = "isoline"
     path = tmp_path / "small-dome.yaml"
     path.write_text(yaml.safe_dump(data))
@@ -189,7 +189,7 @@ def test_octorest_upload_becomes_a_job_and_prints(tmp_path):
         assert status == 200
         key = answer["api_key"]
         client = octorest.OctoRest(url=base, apikey=key)
-        write_dome(tmp_path / "in" / "dome.npy", diameter_mm=25, height_mm=4)
+        write_dome(tmp_path / "in" / "dome.npy")
         result = client.upload(str(tmp_path / "in" / "dome.npy"), select=True, print=True)
         assert result["done"] is True and result["files"]["local"]["name"] == "dome.npy"
         with pytest.raises(RuntimeError):
