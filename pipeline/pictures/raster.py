@@ -357,6 +357,8 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     faded = bool((fade < 1).any())
     spans_at = [px0.astype(np.float32), py0.astype(np.float32), cols["vx"], cols["vy"],
                 cols["reach"]]
+    # One width for all (the usual case): its reach is one number, not gathered per pixel.
+    reach1 = cols["reach"][0] if np.ndim(width_px) == 0 else None
     # Only the rows the segments reach: markers and short strokes need no full-canvas pass.
     top = int(y0[live].min())
     # 0 where none: every key is above it (its coverage, at least 257 of 65535, sits in
@@ -372,7 +374,8 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
         t = np.clip(ox * rep("ux") + oy * rep("uy"), 0.0, 1.0)
         ex = ox - t * rep("vx")
         ey = oy - t * rep("vy")
-        cov = np.clip(rep("reach") - np.sqrt(ex * ex + ey * ey), 0.0, 1.0)
+        reach_px = rep("reach") if reach1 is None else reach1
+        cov = np.clip(reach_px - np.sqrt(ex * ex + ey * ey), 0.0, 1.0)
         if faded:
             cov *= rep("fade")
         sel = np.flatnonzero(cov > 1.0 / 255)
