@@ -64,7 +64,7 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
     """The pixel centres inside each triangle, as one column span per (face, row).
 
     a, b, c : (m, 3) edge functions (:func:`edge_functions`); live : faces to draw;
-    x0..y1 : (m,) their clipped pixel boxes. Returns (face, row, first, last column),
+    x0..y1 : (m,) their clipped pixel boxes (the columns as float). Returns (face, row, first, last column),
     each (r,) int64, empty spans dropped. A centre on a shared edge belongs to both
     neighbours (the tolerance keeps rounding from opening cracks); depth settles ties.
     """
@@ -91,8 +91,8 @@ def _spans(a, b, c, live, x0, x1, y0, y1):
         # The first and the last edge of the kind (as argmax: 0 and 2 when there is none).
         for k in (at + np.where(s0, 0, np.where(s1, 1, np.where(s2, 2, 0))),
                   at + np.where(s2, 2, np.where(s1, 1, np.where(s0, 0, 2)))):
-            k = k.take(run)  # the bound's edge on each of the face's rows
-            bounds.append(slope.take(k) * yc + icpt.take(k))
+            # The bound's slope and intercept per face, then down the face's rows.
+            bounds.append(slope.take(k).take(run) * yc + icpt.take(k).take(run))
     lo = np.maximum(bounds[0], bounds[1])
     hi = np.minimum(bounds[2], bounds[3])
     xa = np.maximum(np.ceil(lo - 0.5), x0.take(f)).astype(np.int64)
@@ -179,14 +179,15 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None, coverage=False):
     live = np.flatnonzero(ok & (x1 >= x0) & (y1 >= y0))
     if len(live) == 0:
         return none()
+    x0f, x1f = x0.astype(np.float64), x1.astype(np.float64)  # compared with float bounds
+    spans = lambda part: _spans(a, b, c, part, x0f, x1f, y0, y1)
     # Depth as a plane over the screen: z = az x + bz y + cz per face, scaled to the
     # 31 bits it takes in the key.
     zmin, zmax = z[live].min(), z[live].max()
     flat = not zmax > zmin  # one depth (a 2-D layout): the lowest face index wins
     if coverage:
         hit = np.zeros(height * width, bool)
-        for f, y, xa, xb in _batched_spans(lambda part: _spans(a, b, c, part, x0, x1, y0, y1),
-                                           live):
+        for f, y, xa, xb in _batched_spans(spans, live):
             hit[_span_pixels(y * width, xa, xb)[0]] = True
         return hit.reshape(shape)
     if not flat:
@@ -196,7 +197,7 @@ def rasterize_triangles(xy, depth, faces, shape, edges=None, coverage=False):
                       for q in (a, b, c))
         cz -= zmin * zscale
     best = np.full(height * width, np.iinfo(np.int64).max, dtype=np.int64)
-    for f, y, xa, xb in _batched_spans(lambda part: _spans(a, b, c, part, x0, x1, y0, y1), live):
+    for f, y, xa, xb in _batched_spans(spans, live):
         pix, x, span = _span_pixels(y * width, xa, xb)
         key = f.take(span)
         if not flat:
@@ -275,8 +276,9 @@ def _capsule_spans(px0, py0, vx0, vy0, reach, live, x0, x1, y0, y1):
     the segment (slightly more at diagonal ends: the capsule's bounding span).
 
     px0, py0, vx0, vy0 : (s,) start and direction (p1 - p0), pixels; reach : (s,) px;
-    live : segments to draw; x0..y1 : (s,) their clipped pixel boxes. Returns (segment,
-    row, first, last column), each (r,) int64, empty spans dropped.
+    live : segments to draw; x0..y1 : (s,) their clipped pixel boxes (the columns as
+    float32). Returns (segment, row, first, last column), each (r,) int64, empty spans
+    dropped.
 
     float32 is enough (half the memory traffic): a centre just outside a span is at
     least ``reach`` from the segment, so one that rounding moves across the span's end
@@ -357,6 +359,7 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     faded = bool((fade < 1).any())
     spans_at = [px0.astype(np.float32), py0.astype(np.float32), cols["vx"], cols["vy"],
                 cols["reach"]]
+    cols_f32 = x0.astype(np.float32), x1.astype(np.float32)  # compared with float32 bounds
     # One width for all (the usual case): its reach is one number, not gathered per pixel.
     reach1 = cols["reach"][0] if np.ndim(width_px) == 0 else None
     # Only the rows the segments reach: markers and short strokes need no full-canvas pass.
@@ -365,7 +368,7 @@ def draw_segments(canvas, p0, p1, colors, width_px=1.0, priority=None):
     # bits 32-47), and zeros need no pass to fill.
     best = np.zeros((int(y1[live].max()) + 1 - top) * width, dtype=np.int64)
     for g, y, xa, xb in _batched_spans(
-            lambda part: _capsule_spans(*spans_at, part, x0, x1, y0, y1), live):
+            lambda part: _capsule_spans(*spans_at, part, *cols_f32, y0, y1), live):
         pix, x, span = _span_pixels((y - top) * width, xa, xb)
         rep = lambda k: cols[k].take(g).take(span)
         # Offsets from p0 in float32 (small numbers); t the nearest point's position.
