@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon_helpers import (all_files, belt_profile, cli_jobs, daemon, drop, gcode_commands,
-                            hostd, jobs, states, wait_for, write_config)
+from daemon_helpers import (SIM, all_files, belt_profile, cli_jobs, daemon, drop,
+                            gcode_commands, hostd, jobs, states, wait_for, write_config)
 from hostd.feed import job_feed
 from printer_helpers import job_commands
 
@@ -112,7 +112,7 @@ def test_runaway_plan_fails_its_job_only(tmp_path, dome):
         "working_pixel_mm: 0.25", "working_pixel_mm: 0"))
     cfg = write_config(tmp_path, planning={"workers": 2, "memory_mb": 700}, printers=[
         {"name": "p1", "profile": str(keep_all), "baud": 2000000,
-         "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0"}])
+         "port": SIM}])
     drop_dir = tmp_path / "share" / "drop"
     big = tmp_path / "in" / "huge.npy"
     big.parent.mkdir(parents=True, exist_ok=True)
@@ -136,7 +136,7 @@ def test_two_daemons_share_one_drop_folder(tmp_path, dome):
     # Printers that clear their own beds: ten prints follow each other without a person.
     env = belt_profile(tmp_path / "profiles")
     belt = [{"name": "p1", "profile": "belt-0.5mm",
-             "port": "sim://?time_scale=0&advanced_ok=1&boot_s=0", "baud": 2000000}]
+             "port": SIM, "baud": 2000000}]
     cfg_a = write_config(tmp_path / "a", node_id="a", share=share, printers=belt)
     cfg_b = write_config(tmp_path / "b", node_id="b", share=share, printers=belt)
     names = ["f%02d.npy" % i for i in range(10)]

@@ -15,7 +15,7 @@ import time
 import pytest
 import yaml
 
-from daemon_helpers import DaemonProcess, hostd, jobs, wait_for, write_config, write_dome
+from daemon_helpers import SIM, DaemonProcess, hostd, jobs, wait_for, write_config, write_dome
 from web_helpers import free_port, get_json, wait_http
 
 pytestmark = pytest.mark.slow
@@ -23,7 +23,6 @@ TOKEN = "octoprint-clients-token"
 # Moves at 1/5 of real time, so a print runs while the clients look; heating, which no
 # client here watches, over in 0.7 s.
 SLOW_SIM = "sim://?time_scale=0.2&advanced_ok=1&boot_s=0&hotend_tau_s=0.5&bed_tau_s=1"
-FAST_SIM = "sim://?time_scale=0&advanced_ok=1&boot_s=0"
 
 
 def start_node(tmp_path, port, sim=SLOW_SIM, profile="generic-0.5mm", **web):
@@ -176,7 +175,7 @@ def small_dome_profile(tmp_path):
 def test_octorest_upload_becomes_a_job_and_prints(tmp_path):
     octorest = pytest.importorskip("octorest")
     port = free_port()
-    config, d = start_node(tmp_path, port, sim=FAST_SIM, profile=small_dome_profile(tmp_path))
+    config, d = start_node(tmp_path, port, sim=SIM, profile=small_dome_profile(tmp_path))
     key = None
     try:
         base = "http://127.0.0.1:%d" % port
@@ -241,7 +240,7 @@ def browse(service, seconds):
 def test_zeroconf_browse_finds_the_node(tmp_path):
     pytest.importorskip("zeroconf")
     port = free_port()
-    _, d = start_node(tmp_path, port, sim=FAST_SIM, announce=True)
+    _, d = start_node(tmp_path, port, sim=SIM, announce=True)
     try:
         infos = [i for i in browse("_octoprint._tcp.local.", 10) if i and i.port == port]
         assert infos, d.output()[-2000:]
@@ -259,7 +258,7 @@ def test_zeroconf_browse_finds_the_node(tmp_path):
 def test_no_announcement_when_turned_off(tmp_path):
     pytest.importorskip("zeroconf")
     port = free_port()
-    _, d = start_node(tmp_path / "off", port, sim=FAST_SIM, announce=False)
+    _, d = start_node(tmp_path / "off", port, sim=SIM, announce=False)
     try:
         assert not [i for i in browse("_octoprint._tcp.local.", 4) if i and i.port == port]
     finally:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon_helpers import DaemonProcess, write_config, write_dome
+from daemon_helpers import SIM, DaemonProcess, write_config, write_dome
 from web_helpers import CHROMIUM, Chromium, free_port, get_json, wait_http
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,9 +107,8 @@ def test_print_anyway_in_headless_chromium(tmp_path):
         text.replace("name: generic-0.5mm", "name: strict-0.5mm")
             .replace("min_coverage: 0.90", "min_coverage: 1.0"))
     port = free_port()
-    fast = "sim://?time_scale=0&advanced_ok=1&boot_s=0"
     config = write_config(tmp_path, printers=[{"name": "p1", "profile": "strict-0.5mm",
-                                               "port": fast, "baud": 2000000}],
+                                               "port": SIM, "baud": 2000000}],
                           web={"host": "127.0.0.1", "port": port, "token": TOKEN})
     base = "http://127.0.0.1:%d" % port
     d = DaemonProcess(config, env={"HOSTD_PROFILES": str(profiles)})
@@ -152,9 +151,8 @@ def test_bed_is_clear_in_headless_chromium(tmp_path):
     from daemon_helpers import hostd
     _requirements()
     port = free_port()
-    fast = "sim://?time_scale=0&advanced_ok=1&boot_s=0"
     config = write_config(tmp_path, printers=[{"name": "p1", "profile": "generic-0.5mm",
-                                               "port": fast, "baud": 2000000}],
+                                               "port": SIM, "baud": 2000000}],
                           web={"host": "127.0.0.1", "port": port, "token": TOKEN})
     base = "http://127.0.0.1:%d" % port
     d = DaemonProcess(config)
