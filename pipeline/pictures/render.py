@@ -184,7 +184,7 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
             # One tint (a free layout's strokes share no edge with the faces, whose
             # shrink is then unknown): only whether a face covers a pixel matters.
             fid = np.where(rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w),
-                                               coverage=True), 0, -1)
+                                               coverage=True), np.int32(0), np.int32(-1))
         else:
             fid = rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w))
         canvas = table.take(fid, axis=0)
