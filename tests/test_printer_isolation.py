@@ -38,7 +38,9 @@ def test_the_link_streams_in_its_own_process_and_the_page_reads_its_mirror(tmp_p
         d.shutdown()
 
 
-def test_a_link_process_that_died_is_replaced_by_a_new_one(tmp_path):
+def test_a_link_process_that_died_is_replaced_by_a_new_one(tmp_path, monkeypatch):
+    from hostd import printing
+    monkeypatch.setattr(printing, "RECONNECT_S", 0.5)   # the loop's retry, not its pace, here
     d = in_process_daemon(tmp_path, 0)
     try:
         first = _connected(d)
