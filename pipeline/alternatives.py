@@ -12,8 +12,7 @@ import numpy as np
 from pipeline.errors import PipelineError
 from pipeline.input.simplify import simplify
 from pipeline.layout import curvature
-from pipeline.layout.fit import (fit_height, least_smoothing, program_relief, program_share,
-                                 scaled)
+from pipeline.layout.fit import fit_height, least_smoothing, program_relief, scaled
 from pipeline.layout.free import FREE_BELOW, flatten_free
 from pipeline.layout.isoline import flatten
 from pipeline.meshing.grid import build_grid_mesh
@@ -135,16 +134,14 @@ def smoothing_that_holds(validated, profile, opts, diameter_mm, fit_height_too):
         mesh = build_grid_mesh(hf, grid)
         flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=QUICK_ITERATIONS)
         # The curvature as the plan smoothed this much would program it.
-        share = program_share(profile)
-        relief = (None if share >= 1.0 else
-                  program_relief(validated, opts["min_prominence_mm"], smooth, share, scale))
-        flat = curvature.bend_free_directions(hf if relief is None else relief, mesh, flat,
+        program = program_relief(validated, opts["min_prominence_mm"], smooth, profile, scale)
+        flat = curvature.bend_free_directions(hf if program is None else program, mesh, flat,
                                               FREE_BELOW)
         # The sheet as the plan would print it, its layer groups turned apart and two
         # layers across where those rest closer: with paths along d only the advice
         # asked for more smoothing than the plan then needs (the real tiles 4 and 6 mm
         # where 3 and 4 hold), at half the look's time.
-        _, sim = simulate_free(hf, mesh, flat, profile, relief=relief)
+        _, sim = simulate_free(hf, mesh, flat, profile, relief=program)
         share = sim.mean_displacement_mm / diameter_mm
         relief = float(np.nanmax(hf.z) - np.nanmin(hf.z))
         lost = sim.mean_displacement_mm / max(relief, 1e-9)

@@ -151,10 +151,14 @@ def program_share(profile):
     return profile.curvature.program_smoothing
 
 
-def program_relief(validated, min_prominence_mm, smooth_mm, share, scale=1.0):
+def program_relief(validated, min_prominence_mm, smooth_mm, profile, scale=1.0):
     """The relief the curvature program of a target smoothed ``smooth_mm`` (from
-    ``validated``, as the plan smooths it) reads: ``validated`` smoothed ``share`` as
-    much, lowered to ``scale``. See :func:`pipeline.fitting.program_relief`."""
+    ``validated``, as the plan smooths it) reads: ``validated`` smoothed
+    :func:`program_share` as much, lowered to ``scale``; None where that share is 1 (the
+    target itself). See :func:`pipeline.fitting.program_relief`."""
+    share = program_share(profile)
+    if share >= 1.0:
+        return None
     relief = simplify(validated, min_prominence_mm, smooth_mm * share)[0]
     return relief if scale >= 1.0 else scaled(relief, scale)
 
