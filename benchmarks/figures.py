@@ -359,9 +359,11 @@ def _disp(r):
 def _rest(r):
     if "simulation_converged" not in r:
         return None
-    return "%s (%s + %s)" % ("yes" if r["simulation_converged"] else "no",
-                             r.get("coarse_iterations", 0),
-                             r.get("simulation_iterations", 0) - r.get("coarse_iterations", 0))
+    coarse = r.get("coarse_iterations", 0)
+    full = r.get("full_iterations")
+    if full is None:        # results from before the report counted them apart
+        full = r.get("simulation_iterations", 0) - coarse
+    return "%s (%s + %s)" % ("yes" if r["simulation_converged"] else "no", coarse, full)
 
 
 def _yes(v):

@@ -194,6 +194,7 @@ print(json.dumps({
     "simulation_converged": r["simulation"]["converged"],
     "simulation_iterations": r["simulation"]["iterations"],
     "coarse_iterations": r["simulation"]["coarse_iterations"],
+    "full_iterations": r["simulation"].get("full_iterations"),
     "simulated_vertices": r["simulation"]["sheet_vertices"],
     "traces": r["toolpath"]["traces"], "spacing_mm": r["toolpath"]["spacing_mm"],
     "ends_inside": r["toolpath"].get("ends_inside"),

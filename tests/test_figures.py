@@ -108,3 +108,15 @@ def test_the_readme_block_has_at_most_eight_columns_with_the_plan_time_and_memor
         assert column in head
     assert "| dome (free) | 175 | 0.61 mm | yes | 1 + 1 + 1 across | 11.4 | 1 h 33 min | 411 |" \
         in block
+
+
+def test_at_rest_counts_the_coarse_sheet_and_the_plans_mesh_apart(tmp_path):
+    """The free method's settle reports its coarse trials apart from the plan's mesh's
+    iterations, the paper's forward simulation both stages in one count: each row says
+    coarse + plan's mesh, neither negative."""
+    res = tmp_path / "results"
+    staged = dict(DOME, simulation_iterations=70, coarse_iterations=571, full_iterations=70)
+    figures.save("plan", {"dome": {"methods": {"isoline": DOME, "free": staged}}}, COND,
+                 folder=res)
+    text = figures.render(figures.load(res))
+    assert "yes (571 + 70)" in text and "yes (176 + 49)" in text and "+ -" not in text

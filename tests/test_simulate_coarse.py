@@ -29,6 +29,7 @@ def test_coarse_sheet_rises_like_the_full_mesh(name, size):
     n = len(mesh.vertices)
     assert coarse.sheet_vertices < n / 4 and full.sheet_vertices == both.sheet_vertices == n
     assert full.coarse_iterations == 0 < both.coarse_iterations == coarse.iterations
+    assert both.report()["full_iterations"] == both.iterations - both.coarse_iterations > 0
     assert coarse.vertices.shape == mesh.vertices.shape
     d = longest_diameter(mesh)
     assert abs(both.mean_displacement_mm - full.mean_displacement_mm) < 0.001 * d, (

@@ -50,6 +50,10 @@ def test_the_trials_run_on_the_coarse_sheet_and_the_plans_mesh_settles_once(sadd
     # Carried, not flat: the start already rises into the saddle.
     assert np.ptp(start[:, 2]) > 0.5 * np.ptp(np.asarray(mesh.vertices)[:, 2])
     assert sim.coarse_iterations > sim.iterations > 0
+    # The report counts the coarse sheet's trials and the plan's mesh's settle apart.
+    counts = sim.report()
+    assert (counts["coarse_iterations"], counts["full_iterations"]) == (
+        sim.coarse_iterations, sim.iterations)
     assert {"coarse", "full", "total", "coarse_cpu", "full_cpu"} <= set(sim.timing_s)
     # The program chosen on the coarse sheet is made on the plan's mesh.
     assert prog.across["kept"] and len(prog.theta_rest) > len(cmesh.faces)

@@ -63,6 +63,10 @@ class SimResult:
         only with ``refine=False``).
     coarse_iterations : int
         Iterations of the coarse sheet's stage (0 without one).
+    full_iterations : int or None
+        Iterations on the plan's own mesh; None: ``iterations`` after the coarse stage's.
+        The free method's settle counts its coarse trials apart and ``iterations`` are
+        only the plan's mesh's (:func:`pipeline.simulation.staged.simulate_free`).
     energy_history : list of float
         Both stages' energies, one list (each stage starts its own).
     timing_s : dict
@@ -81,6 +85,7 @@ class SimResult:
     clamped_edges: int
     sheet_vertices: int = 0
     coarse_iterations: int = 0
+    full_iterations: int = None
     energy_history: list = field(default_factory=list)
     timing_s: dict = field(default_factory=dict)
     faces: np.ndarray = None
@@ -92,7 +97,10 @@ class SimResult:
                 "max_displacement_mm": float(self.max_displacement_mm),
                 "iterations": int(self.iterations), "converged": bool(self.converged),
                 "mirrored": bool(self.mirrored), "sheet_vertices": int(self.sheet_vertices),
-                "coarse_iterations": int(self.coarse_iterations)}
+                "coarse_iterations": int(self.coarse_iterations),
+                "full_iterations": int(self.iterations - self.coarse_iterations
+                                       if self.full_iterations is None
+                                       else self.full_iterations)}
 
 
 def simulate(mesh, flat, iterations=300, weights=None, s_min=None, s_max=None,

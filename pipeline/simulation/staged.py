@@ -96,7 +96,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=CO
     prog.twist = None if cprog.twist is None else dict(cprog.twist, coarse_mm=coarse_mm)
     prog.across = _across_report(cprog.across, prog, coarse_mm)
     t2, c2 = time.perf_counter(), time.process_time()
-    sim = dataclasses.replace(sim, coarse_iterations=sum(tally),
+    sim = dataclasses.replace(sim, coarse_iterations=sum(tally), full_iterations=sim.iterations,
                               timing_s={"coarse": t1 - t0, "full": t2 - t1, "total": t2 - t0,
                                         "coarse_cpu": c1 - c0, "full_cpu": c2 - c1})
     return prog, sim
