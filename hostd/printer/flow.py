@@ -8,8 +8,13 @@ only right after N-1 (so the firmware itself never runs a line twice):
 - ``Resend: r`` is always followed by a plain ``ok`` that answers the rejected line, not
   a processed one (``error_acks``); lines before r were accepted and keep waiting for
   their own ok, lines from r on are dropped or rejected by the firmware, so sending
-  restarts at r once the link has been quiet for a moment (stragglers already on the
-  wire each provoke another ``Resend: r``, which must not restart the replay again);
+  restarts at r once the link has been quiet for a moment;
+- every line that was behind r and escaped the flush provokes another ``Resend: r``: an
+  echo, not a new request (at most one per line dropped from the window). An echo can
+  come after the replay went out (the firmware was slow to read, or its answer slow to
+  arrive); its own flush may or may not have taken the replay with it, so the replay
+  goes again after a quiet unless answered meanwhile -- and an ``ok N<n>`` counts for
+  line n by its number, whichever transmission of n it answers;
 - the flush can cut a line in two; the tail is only checksum digits (anything else
   would contain the ``*``), which Marlin answers with ``Unknown command`` and an ok
   that answers nothing;
@@ -54,6 +59,7 @@ class LineFlow:
         self.error_acks = 0           # oks still due for resend requests
         self.resync_target = None
         self.resync_until = 0.0
+        self.echoes_due = 0           # lines behind resync_target that may still echo it
         self.last_confirmed_n = -1    # highest line the firmware answered with a real ok
 
     # -- state ---------------------------------------------------------------------------
@@ -81,6 +87,7 @@ class LineFlow:
         self.error_acks = 0
         self.cursor = self.next_n
         self.resync_until = 0.0
+        self.echoes_due = 0
 
     # -- sending -------------------------------------------------------------------------
 
@@ -151,6 +158,15 @@ class LineFlow:
                 answered = next(s for s in self.limbo if s.n == line)
                 self.limbo.remove(answered)
                 confirmed.append(answered)
+            elif self.last_confirmed_n < line < self.next_n and line in self.history:
+                # Its transmission was dropped from the window at a late echo, but the
+                # flush had missed it: the firmware has it and every line before it.
+                while self.fifo and self.fifo[0].n < line:
+                    self._pop()
+                self.limbo = [s for s in self.limbo if s.n > line]
+                confirmed = [self.history[n] for n in range(self.last_confirmed_n + 1, line + 1)
+                             if n in self.history]
+                answered = confirmed[-1]
             # else: an answer for a line already resolved.
         elif self.fifo:
             answered = self._pop()
@@ -162,8 +178,12 @@ class LineFlow:
             # The firmware took line n only after n-1: everything older was accepted.
             confirmed += [s for s in self.limbo if s.n < answered.n]
             self.limbo = [s for s in self.limbo if s.n > answered.n]
+        if answered is not None and self.cursor <= answered.n:
+            self.cursor = answered.n + 1     # no replaying what the firmware already has
         if confirmed:
             self.last_confirmed_n = max(self.last_confirmed_n, max(s.n for s in confirmed))
+            if self.resync_target is not None and self.last_confirmed_n >= self.resync_target:
+                self.echoes_due = 0   # the replay was read, so were all the stragglers before it
         return confirmed
 
     def on_resend(self, line, now):
@@ -171,24 +191,33 @@ class LineFlow:
         self.error_acks += 1
         if line not in self.history and line != self.next_n:
             raise PrinterError("resend", "firmware asked for line %d which is no longer in history" % line)
-        if line <= self.last_confirmed_n:
+        accepted = [s for s in self.limbo if s.n < line]
+        self.limbo = []
+        echo = (line == self.resync_target and line > self.last_confirmed_n
+                and (now < self.resync_until or self.echoes_due > 0))
+        if echo:
+            self.echoes_due = max(0, self.echoes_due - 1)
+        elif line <= self.last_confirmed_n:
             # An ok we took for that line belonged to something else (a reply lost to
             # line noise). The firmware's own N == last+1 rule still guarantees it runs
             # the line once, so replaying is right; the miscount is only recorded.
             self.stats["misattributed_oks"] = self.stats.get("misattributed_oks", 0) + 1
             self.last_confirmed_n = line - 1
-        accepted = [s for s in self.limbo if s.n < line]
-        self.limbo = []
         kept = deque(s for s in self.fifo if s.n < line)
         doomed = len(self.fifo) - len(kept)
         self.fifo = kept
         self.fifo_bytes = sum(len(s.data) for s in kept)
-        if self.resync_target == line and now < self.resync_until:
-            self.resync_until = now + self.quiet_s()   # another echo of the same request
+        self.cursor = line
+        if echo:
+            # Nothing sent since the request, or a replay that went out behind the
+            # straggler and may have gone with its flush: (again) after a quiet.
+            self.resync_until = now + self.quiet_s()
             return accepted, False
         self.stats["resends"] += 1
-        self.cursor = line
         self.resync_target = line
+        # One transmission drew this request; each other one drops out in the flush
+        # or answers it once more.
+        self.echoes_due = max(0, doomed - 1)
         # Only wait for stragglers when more than the offending line was in flight.
         self.resync_until = now + self.quiet_s() if doomed > 1 else now
         return accepted, True
@@ -212,6 +241,7 @@ class LineFlow:
         self.fifo.clear()
         self.fifo_bytes = 0
         self.error_acks = 0
+        self.echoes_due = 0   # long read by now: a request after the probe is a real one
 
     def _pop(self):
         sent = self.fifo.popleft()
