@@ -92,7 +92,8 @@ def layout_picture(plans, lim):
     pts, ticks, sig = render.direction_ticks(free.flat.xy, free.mesh.faces, free.flat.direction,
                                              free.flat.sigma)
     b = render.stress_image(pts, ticks, sig, lim.s_min, lim.s_max, faces=free.mesh.faces,
-                            max_px=PANEL_PX, title="free: a print direction per triangle")
+                            face_sigma=free.flat.sigma, max_px=PANEL_PX,
+                            title="free: a print direction per triangle")
     return render.montage([a, b], ["isoline (the paper's)", "free (the default)"],
                           title="A 60 mm saddle laid out flat by each method")
 
@@ -102,7 +103,7 @@ def direction_picture(plans, lim):
     pts, ticks, sig = render.direction_ticks(p.flat.xy, p.mesh.faces, p.flat.direction,
                                              p.flat.sigma)
     return render.stress_image(pts, ticks, sig, lim.s_min, lim.s_max, faces=p.mesh.faces,
-                               max_px=PANEL_PX + 300,
+                               face_sigma=p.flat.sigma, max_px=PANEL_PX + 300,
                                title="80 mm starfish, free layout: print direction and shrink")
 
 

@@ -120,7 +120,7 @@ def write_outputs(st, plan, keep=None):
     if hasattr(flat, "direction"):
         pts, ticks, sig = render.direction_ticks(flat.xy, mesh.faces, flat.direction, flat.sigma)
         st.write_image(out["stress.png"], render.stress_image(
-            pts, ticks, sig, lim.s_min, lim.s_max, faces=mesh.faces,
+            pts, ticks, sig, lim.s_min, lim.s_max, faces=mesh.faces, face_sigma=flat.sigma,
             title="%s: flat layout, shrink and print direction per triangle" % name))
     else:
         st.write_image(out["stress.png"], render.stress_image(

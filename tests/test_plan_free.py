@@ -145,3 +145,23 @@ def test_hops_over_printed_paths_move_dry_in_the_gcode(saddle_plan):
         if paths is not None:
             assert all(len(d) == len(s) for d, s in zip(paths.dry, paths.sigma))
             assert all(np.isfinite(s).all() for s in paths.sigma)
+
+
+def test_the_stress_picture_tints_the_sheet_by_each_triangles_shrink(saddle_plan, tmp_path,
+                                                                     monkeypatch):
+    """The free layout's strokes share no edge with its triangles: the picture is given
+    the layout's own shrink per triangle for the sheet's tint (else one grey)."""
+    from hostd.outputs import Staging
+    from pipeline.pictures import render
+    plan, _ = saddle_plan
+    seen = []
+    drawn = render.stress_image
+
+    def stress_image(*args, **kw):
+        seen.append(kw.get("face_sigma"))
+        return drawn(*args, **kw)
+    monkeypatch.setattr(render, "stress_image", stress_image)
+    with Staging(tmp_path) as st:
+        planner.write_outputs(st, plan)
+    assert len(seen) == 1 and seen[0] is not None
+    assert np.array_equal(seen[0], plan.flat.sigma) and np.ptp(seen[0]) > 0.01

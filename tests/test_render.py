@@ -161,6 +161,23 @@ def test_stress_image_colours_edges_by_sigma_marks_invalid_ones_and_has_a_legend
     assert img.width > 8 * 100 and img.height > 8 * 20
 
 
+def test_a_free_layouts_sheet_is_tinted_by_each_triangles_shrink():
+    """Its strokes (a print direction per triangle) share no edge with the faces, so the
+    tint comes from the layout's own shrink per triangle: the less shrunk half of the
+    sheet pale blue, the more shrunk one warmer, not one grey for both."""
+    xy, faces, _ = _strip_layout()
+    centre_x = xy[faces].mean(axis=1)[:, 0]
+    sigma = np.where(centre_x < 50, 0.05, 0.30)
+    pts, ticks, sig = render.direction_ticks(xy, faces, np.tile([1.0, 0.0], (len(faces), 1)),
+                                             sigma)
+    img = render.stress_image(pts, ticks, sig, 0.0, 0.343, faces=faces, face_sigma=sigma,
+                              px_per_mm=8)
+    tint = 0.28 * colormap([0.05, 0.30], 0.0, 0.343, "shrink") + 0.72 * 246.0
+    for at, expected in (((19.5, 4.3), tint[0]), ((79.5, 4.3), tint[1])):
+        assert np.abs(rgb_at(img, at) - expected).max() <= 3, (at, rgb_at(img, at), expected)
+    assert np.abs(tint[0] - tint[1]).max() > 20
+
+
 def test_stress_image_respects_max_px_and_default_scale():
     xy, faces, pe = _strip_layout()
     small = render.stress_image(xy * 10, pe, np.full(len(pe), 0.2), 0.0, 0.343, max_px=500)

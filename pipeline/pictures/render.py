@@ -132,7 +132,7 @@ def _face_sigma(n, faces, printing_edges, sigma):
 
 
 def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=None, max_px=2000,
-                 title="", line_px=None):
+                 title="", line_px=None, face_sigma=None):
     """The flattened layout with printing edges coloured by shrink ratio (paper Fig. 1 right).
 
     Parameters
@@ -147,6 +147,9 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
         or black (< s_min) and counted in the legend.
     faces : (m, 3) int, optional
         When given, the sheet is filled with a pale tint of the local shrink and outlined.
+    face_sigma : (m,) float, optional
+        The shrink of each face for that tint; default: the mean of its printing edges
+        (a free layout's strokes share no edge with the faces: it passes its own).
     px_per_mm : float, optional
         Drawing scale; default gives ~1400 px on the longest side.
     max_px : int
@@ -173,7 +176,8 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     lw = float(line_px) if line_px else float(np.clip(0.4 * spacing_px, 1.0, 3.5))
 
     if faces is not None and len(faces):
-        face_sigma = _face_sigma(len(xy), faces, edges, sigma)
+        if face_sigma is None:
+            face_sigma = _face_sigma(len(xy), faces, edges, sigma)
         # Faces are a few px across, so a flat tint per face reads as a smooth field.
         tint = 0.28 * colormap(face_sigma, s_min, s_max, "shrink") + 0.72 * 246.0
         # Every pixel looked up at once, a white row last for those of no face (-1): the
@@ -181,8 +185,8 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
         # float32: half the memory traffic of the drawing that follows.
         table = np.vstack([tint, np.full((1, 3), WHITE)]).astype(np.float32)
         if (tint == tint[0]).all():
-            # One tint (a free layout's strokes share no edge with the faces, whose
-            # shrink is then unknown): only whether a face covers a pixel matters.
+            # One tint (one shrink everywhere, or none known): only whether a face
+            # covers a pixel matters.
             fid = np.where(rasterize_triangles(p, np.zeros(len(p)), faces, (plan.h, plan.w),
                                                coverage=True), np.int32(0), np.int32(-1))
         else:
