@@ -96,9 +96,11 @@ class DaemonProcess:
         self.config = Path(config)
         self.log = self.config.with_name("daemon-%d.log" % time.monotonic_ns())
         self._out = open(self.log, "w")
+        # A process group of its own, as a terminal's foreground job is (see ctrl_c).
         self.proc = subprocess.Popen([sys.executable, "-m", "hostd", "run", "-c", str(config)],
                                      cwd=ROOT, stdout=self._out, stderr=subprocess.STDOUT,
-                                     env=dict(os.environ, **(env or {})))
+                                     env=dict(os.environ, **(env or {})),
+                                     start_new_session=True)
 
     def stop(self, sig=signal.SIGTERM, timeout=30):
         if self.proc.poll() is None:
@@ -107,6 +109,10 @@ class DaemonProcess:
             return self.proc.wait(timeout)
         finally:
             self._out.close()
+
+    def ctrl_c(self):
+        """What Ctrl-C in its terminal does: SIGINT to every process of its group."""
+        os.killpg(self.proc.pid, signal.SIGINT)
 
     def output(self):
         return self.log.read_text()

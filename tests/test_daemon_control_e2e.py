@@ -102,6 +102,26 @@ def test_stop_print_on_the_printer_cancels_the_job(tmp_path, dome, pty_sim):
 
 
 @pytest.mark.slow
+def test_ctrl_c_during_a_print_still_runs_the_cancel_script(tmp_path, dome, pty_sim):
+    """Ctrl-C in the terminal of `hostd run` reaches every process of its foreground
+    group; the printer link must outlive it long enough for the daemon to send the cancel
+    script (heaters off), not die with it and leave the printer hot."""
+    from hostd.printer.settings import script_lines
+    from pipeline.profiles.profile import load_profile
+
+    sim, port = pty_sim
+    cancel = script_lines(load_profile("generic-0.5mm").render_gcode("cancel"))
+    with printing_dome(tmp_path, dome, port) as (cfg, d):
+        d.ctrl_c()
+        assert d.proc.wait(30) == 0
+        d._out.close()
+        wait_for(lambda: job_commands(sim)[-len(cancel):] == cancel, timeout=10,
+                 what="the cancel script on the printer")
+    assert "cancel failed" not in d.output()
+    assert "The print of dome.npy was interrupted: the daemon was stopped" in d.output()
+
+
+@pytest.mark.slow
 def test_pause_and_resume_from_the_terminal_park_and_continue(tmp_path, dome, pty_sim):
     from hostd.printer.settings import script_lines
     from pipeline.profiles.profile import load_profile

@@ -71,11 +71,14 @@ class PrinterProcess(Publisher):
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         # A fresh interpreter (not multiprocessing's spawn, which re-imports the caller's
-        # __main__), talking pickles over a socketpair.
+        # __main__), talking pickles over a socketpair. In a session of its own: Ctrl-C in
+        # the terminal of `hostd run` signals the whole foreground group, and a link that
+        # died with it would take the daemon's cancel script (heaters off) with it. It
+        # still ends with the daemon: the socket closes, and it closes the printer.
         ours, theirs = socket.socketpair()
         self._process = subprocess.Popen(
             [sys.executable, "-m", "hostd.printer.child", str(theirs.fileno())],
-            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
+            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, start_new_session=True)
         theirs.close()
         self._conn = Connection(ours.detach())
         self._conn.send((port, self.settings))
