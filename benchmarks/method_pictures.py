@@ -89,22 +89,18 @@ def layout_picture(plans, lim):
     a = render.stress_image(iso.flat.xy, iso.mesh.printing_edges, iso.flat.sigma, lim.s_min,
                             lim.s_max, faces=iso.mesh.faces, max_px=PANEL_PX,
                             title="isoline: shrink along the isolines")
-    pts, ticks, sig = render.direction_ticks(free.flat.xy, free.mesh.faces, free.flat.direction,
-                                             free.flat.sigma)
-    b = render.stress_image(pts, ticks, sig, lim.s_min, lim.s_max, faces=free.mesh.faces,
-                            face_sigma=free.flat.sigma, max_px=PANEL_PX,
-                            title="free: a print direction per triangle")
+    b = render.direction_image(free.flat.xy, free.mesh.faces, free.flat.direction,
+                               free.flat.sigma, lim.s_min, lim.s_max, max_px=PANEL_PX,
+                               title="free: a print direction per triangle")
     return render.montage([a, b], ["isoline (the paper's)", "free (the default)"],
                           title="A 60 mm saddle laid out flat by each method")
 
 
 def direction_picture(plans, lim):
     p = plans["starfish_free"]
-    pts, ticks, sig = render.direction_ticks(p.flat.xy, p.mesh.faces, p.flat.direction,
-                                             p.flat.sigma)
-    return render.stress_image(pts, ticks, sig, lim.s_min, lim.s_max, faces=p.mesh.faces,
-                               face_sigma=p.flat.sigma, max_px=PANEL_PX + 300,
-                               title="80 mm starfish, free layout: print direction and shrink")
+    return render.direction_image(p.flat.xy, p.mesh.faces, p.flat.direction, p.flat.sigma,
+                                 lim.s_min, lim.s_max, max_px=PANEL_PX + 300,
+                                 title="80 mm starfish, free layout: print direction and shrink")
 
 
 def curvature_picture(plans):

@@ -118,9 +118,8 @@ def write_outputs(st, plan, keep=None):
     plyio.write_ply(st.path(out["simulated.ply"]), sim.vertices, sim_faces,
                     vertex_colors=colors)
     if hasattr(flat, "direction"):
-        pts, ticks, sig = render.direction_ticks(flat.xy, mesh.faces, flat.direction, flat.sigma)
-        st.write_image(out["stress.png"], render.stress_image(
-            pts, ticks, sig, lim.s_min, lim.s_max, faces=mesh.faces, face_sigma=flat.sigma,
+        st.write_image(out["stress.png"], render.direction_image(
+            flat.xy, mesh.faces, flat.direction, flat.sigma, lim.s_min, lim.s_max,
             title="%s: flat layout, shrink and print direction per triangle" % name))
     else:
         st.write_image(out["stress.png"], render.stress_image(

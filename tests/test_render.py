@@ -168,10 +168,8 @@ def test_a_free_layouts_sheet_is_tinted_by_each_triangles_shrink():
     xy, faces, _ = _strip_layout()
     centre_x = xy[faces].mean(axis=1)[:, 0]
     sigma = np.where(centre_x < 50, 0.05, 0.30)
-    pts, ticks, sig = render.direction_ticks(xy, faces, np.tile([1.0, 0.0], (len(faces), 1)),
-                                             sigma)
-    img = render.stress_image(pts, ticks, sig, 0.0, 0.343, faces=faces, face_sigma=sigma,
-                              px_per_mm=8)
+    img = render.direction_image(xy, faces, np.tile([1.0, 0.0], (len(faces), 1)), sigma,
+                                 0.0, 0.343, px_per_mm=8)
     tint = 0.28 * colormap([0.05, 0.30], 0.0, 0.343, "shrink") + 0.72 * 246.0
     for at, expected in (((19.5, 4.3), tint[0]), ((79.5, 4.3), tint[1])):
         assert np.abs(rgb_at(img, at) - expected).max() <= 3, (at, rgb_at(img, at), expected)

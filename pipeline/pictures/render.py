@@ -149,7 +149,7 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
         When given, the sheet is filled with a pale tint of the local shrink and outlined.
     face_sigma : (m,) float, optional
         The shrink of each face for that tint; default: the mean of its printing edges
-        (a free layout's strokes share no edge with the faces: it passes its own).
+        (:func:`direction_image` passes a free layout's own).
     px_per_mm : float, optional
         Drawing scale; default gives ~1400 px on the longest side.
     max_px : int
@@ -221,12 +221,22 @@ def stress_image(xy, printing_edges, sigma, s_min, s_max, faces=None, px_per_mm=
     return plan.tag(fig, bxy)
 
 
+def direction_image(xy, faces, direction, sigma, s_min, s_max, **kw):
+    """:func:`stress_image` of a free-direction layout: a stroke along each triangle's
+    print direction, coloured by its shrink ``sigma`` ((m,)), on the sheet tinted by the
+    same (the strokes share no edge with the triangles, so the tint cannot be had from
+    them). ``kw``: :func:`stress_image`'s drawing options."""
+    pts, ticks, sig = direction_ticks(xy, faces, direction, sigma)
+    return stress_image(pts, ticks, sig, s_min, s_max, faces=faces, face_sigma=sig, **kw)
+
+
 def direction_ticks(xy, faces, direction, sigma, length_fraction=0.7):
     """Short strokes along each triangle's print direction, through its centroid, for
     :func:`stress_image` of a free-direction layout.
 
     Returns (points (n + 2m, 2) mm: ``xy`` then the strokes' ends, edges (m, 2) int,
-    sigma (m,)): the strokes as "printing edges" coloured by their triangle's shrink.
+    sigma (m,)): the strokes as "printing edges" coloured by their triangle's shrink
+    (drawn by :func:`direction_image`).
     """
     xy = np.asarray(xy, dtype=float)[:, :2]
     P = xy[faces]
