@@ -60,15 +60,18 @@ class Stripes(NamedTuple):
     faces: list       # of (k - 1,) int: the layout's triangle each segment lies in
 
 
-def stripe_phase(sheet, normal, width_mm):
+def stripe_phase(sheet, normal, width_mm, near=None):
     """Phase per vertex of ``sheet`` (:class:`pipeline.paths.sheet.Sheet`; (n,) rad)
     whose gradient is ``2 pi / width`` along the line field ``normal`` (per face, unit;
     the paths run across it), and the vertex field ``X`` ((n, 2)) the phase is measured
-    along."""
+    along. ``near``: (n,) rad, a phase the answer is expected close to (one solved at a
+    nearby width), where the solve starts."""
     X = vertex_line_field(sheet, normal)
     A, diag = stripe_matrix(sheet, X, width_mm)
     mass = np.repeat(sheet.vertex_area, 2)
-    vec = smallest_eigenvector(A, mass, -SHIFT * float(diag.mean()) / float(mass.mean()))
+    start = None if near is None else np.column_stack([np.cos(near), np.sin(near)]).ravel()
+    vec = smallest_eigenvector(A, mass, -SHIFT * float(diag.mean()) / float(mass.mean()),
+                               start=start)
     psi = vec[0::2] + 1j * vec[1::2]
     return np.angle(psi), X
 
@@ -88,7 +91,9 @@ def stripe_phase_at_width(sheet, normal, width_mm, tol=WIDTH_TOL):
     if drawn is None or abs(drawn / width_mm - 1.0) <= tol:
         return phase, X, width_mm
     asked = width_mm * width_mm / drawn
-    phase, X = stripe_phase(sheet, normal, asked)
+    # The pattern at the corrected width is the first one a few per cent denser: started
+    # from it the solve takes 4 iterations instead of 11 on the 175 mm dome.
+    phase, X = stripe_phase(sheet, normal, asked, near=phase)
     return phase, X, asked
 
 
@@ -105,10 +110,10 @@ def drawn_spacing(xy, faces, u, ok):
     return float(area.sum() / (area * grad).sum())
 
 
-def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
+def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100, start=None):
     """The eigenvector of ``A x = lambda diag(mass) x`` with the smallest eigenvalue, by
-    inverse iteration from a fixed start on one factorisation of ``A - shift M`` (``A``
-    symmetric positive semi-definite, ``shift`` < 0).
+    inverse iteration from a fixed start (or ``start``, (2n,)) on one factorisation of
+    ``A - shift M`` (``A`` symmetric positive semi-definite, ``shift`` < 0).
 
     Where the two smallest eigenvalues nearly coincide (a field with several singular
     points) any vector of their span is an equally good stripe pattern; ARPACK, asked
@@ -121,13 +126,14 @@ def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100):
     # 1.24 -> 0.29 s).
     lu = splu((A - shift * sp.diags(mass)).tocsc(), permc_spec="MMD_AT_PLUS_A",
               diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    x = np.random.default_rng(0).standard_normal(A.shape[0])
-    x /= np.sqrt(np.dot(x, mass * x))
+    x = np.random.default_rng(0).standard_normal(A.shape[0]) if start is None else start
+    x = x / np.sqrt(np.dot(x, mass * x))
     for _ in range(max_iterations):
         y = lu.solve(mass * x)
         y /= np.sqrt(np.dot(y, mass * y))
-        lam = float(np.dot(y, A @ y))
-        r = A @ y - lam * mass * y
+        Ay = A @ y
+        lam = float(np.dot(y, Ay))
+        r = Ay - lam * mass * y
         x = y
         if np.sqrt(np.dot(r, r / mass)) <= tol * max(abs(lam), 1e-12):
             break
