@@ -41,6 +41,12 @@ _MIN_AREA_FRACTION = 0.05
 # Weight of the collapse barrier relative to the stretch term: small, so that it
 # changes nothing while triangles keep their area to a few per cent.
 ALPHA = 0.1
+# Triangles or hinges per block of the energy. Whole-mesh temporaries (a megabyte
+# each on a 30k-triangle sheet) went back to the kernel when freed and page-faulted
+# on every call: more system time than the arithmetic. A block's (3, block) floats
+# (192 kB) are reused by malloc and stay in cache; smaller blocks pay numpy's call
+# overhead more often (4096 measured 10% slower, 1024 twice as slow).
+_BLOCK = 8192
 
 
 def rest_frames(rest_len):
@@ -109,11 +115,18 @@ class ShellSystem:
         self.w_face = h * self.rest_area
         # Corner coefficients: F = sum_k x_k C[f, k, :].
         base = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
-        C = np.einsum("kc,fcd->fkd", base, self.Dm_inv)
-        self.C = C
-        self.Ck = [[np.ascontiguousarray(C[:, k, d]) for d in range(2)] for k in range(3)]
+        self.C = np.einsum("kc,fcd->fkd", base, self.Dm_inv)
+        # The nonzero entries of Dm_inv (its [1, 0] is 0): F = [x1 - x0, x2 - x0] Dm_inv.
+        self._inv = [np.ascontiguousarray(self.Dm_inv[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1))]
         self.hinges = top.hinges
-        self._hinge_idx = np.ascontiguousarray(top.hinges.T).ravel()
+        self._corners = [np.ascontiguousarray(c) for c in self.faces.T]
+        self._hinge_cols = [np.ascontiguousarray(c) for c in top.hinges.T]
+        # Where each gradient contribution goes (three per triangle, then four per
+        # hinge), as an (n, 3m + 4h) 0/1 matrix: its product gathers each vertex's
+        # terms, twice as fast as np.bincount scattering them.
+        to = np.concatenate([self.faces.T.ravel(), top.hinges.T.ravel()])
+        self._scatter = sp.csr_matrix((np.ones(len(to)), (to, np.arange(len(to)))),
+                                      shape=(n, len(to)))
         hf = top.hinge_faces
         area = np.maximum(self.rest_area, _MIN_AREA_FRACTION * float(np.median(self.rest_area)))
         self._e_len = e_len = self._hinge_rest_length(rest_len)
@@ -197,10 +210,20 @@ class ShellSystem:
 
     def project(self, X):
         """Energy and gradient at ``X`` ((3, n) mm): (gradient (3, n), energy)."""
-        g = np.zeros_like(X)
-        e_m = self._membrane(X, g)
-        e_b = self._bending(X, g)
-        return g, e_m + e_b
+        W, m3 = self._contributions(), 3 * len(self.faces)
+        e = self._membrane(X, W[:, :m3]) + self._bending(X, W[:, m3:])
+        g = np.empty_like(X)
+        for i in range(3):
+            g[i] = self._scatter @ W[i]
+        return g, e
+
+    def _contributions(self):
+        """The (3, 3m + 4h) buffer the energies write their gradient terms to, kept
+        between calls (a fresh one page-faults): this makes :meth:`project` not
+        reentrant."""
+        if getattr(self, "_W", None) is None:
+            self._W = np.empty((3, self._scatter.shape[1]))
+        return self._W
 
     def gradient(self, g, X):
         """The gradient :meth:`project` computed at ``X``."""
@@ -212,44 +235,65 @@ class ShellSystem:
 
     def energy_terms(self, X):
         """Membrane and bending energy at ``X`` ((3, n)): dict, N mm with E = 1 N/mm^2."""
-        g = np.zeros_like(X)
-        return {"membrane": self._membrane(X, g), "bending": self._bending(X, g)}
+        W, m3 = self._contributions(), 3 * len(self.faces)
+        return {"membrane": self._membrane(X, W[:, :m3]), "bending": self._bending(X, W[:, m3:])}
 
-    def _membrane(self, X, g):
-        # Component arrays throughout: F[d] is the (3, m) column d of every F.
+    def _membrane(self, X, out):
+        """Membrane and barrier energy at ``X`` ((3, n) mm); writes each corner's
+        gradient to ``out`` ((3, 3m), corner-major as ``faces.T``)."""
+        m = len(self.faces)
+        e = 0.0
+        for sl in _blocks(m):
+            G = [out[:, k * m + sl.start:k * m + sl.stop] for k in range(3)]
+            e += self._membrane_block(X, sl, *G)
+        return e
+
+    def _membrane_block(self, X, sl, g0, g1, g2):
+        """:meth:`_membrane` on the faces ``sl``: energy, gradients into g0..g2 ((3, k))."""
+        # Component arrays throughout: F[d] is the (3, k) column d of every F.
         # np.take gathers columns four times faster than X[:, index].
-        P = [np.take(X, self.faces[:, k], axis=1) for k in range(3)]   # corner k: (3, m)
-        C = self.Ck
-        F = [P[0] * C[0][d] + P[1] * C[1][d] + P[2] * C[2][d] for d in range(2)]
-        R = nearest_orthonormal(F)
-        D = [(F[d] - R[d]) * self.w_face for d in range(2)]
-        e = 0.5 * float(((F[0] - R[0]) * D[0]).sum() + ((F[1] - R[1]) * D[1]).sum())
+        c0, c1, c2 = (np.take(X, c[sl], axis=1) for c in self._corners)
+        e1, e2 = np.subtract(c1, c0, out=c1), np.subtract(c2, c0, out=c2)
+        i00, i01, i11 = (c[sl] for c in self._inv)
+        F0, F1 = e1 * i00, e1 * i01 + e2 * i11
+        R0, R1 = nearest_orthonormal((F0, F1))
+        D0, D1 = np.subtract(F0, R0, out=F0), np.subtract(F1, R1, out=F1)
+        w, area = self.w_face[sl], self.rest_area[sl]
+        e = 0.5 * float(w @ (_dot(D0, D0) + _dot(D1, D1)))
+        D0 *= w
+        D1 *= w
         # dE/dx_k = w (F - R) C_k (R is the Euclidean projection: no term of its own).
-        N = _cross(P[1] - P[0], P[2] - P[0])          # (3, m), twice the area
-        norm = np.maximum(np.sqrt((N * N).sum(axis=0)), 1e-300)
-        J = norm / (2.0 * self.rest_area)
-        wa = ALPHA * self.w_face
-        e += float((wa * (J - 1.0 - np.log(J))).sum())
-        # d|N|/dx_k = unit(N) x (x_{k+2} - x_{k+1}).
-        coef = wa * (1.0 - 1.0 / J) / (2.0 * self.rest_area) / norm
-        n = X.shape[1]
-        idx = self.faces.T.ravel()
-        dJ = [_cross(N, P[(k + 2) % 3] - P[(k + 1) % 3]) * coef for k in range(3)]
-        for i in range(3):
-            gk = np.concatenate([D[0][i] * C[k][0] + D[1][i] * C[k][1] + dJ[k][i]
-                                 for k in range(3)])
-            g[i] += np.bincount(idx, gk, n)
+        N = _cross(e1, e2)          # (3, k), twice the area
+        norm = np.maximum(np.sqrt(_dot(N, N)), 1e-300)
+        J = norm / (2.0 * area)
+        wa = ALPHA * w
+        e += float(wa @ (J - 1.0 - np.log(J)))
+        # d|N|/dx_k = unit(N) x (x_{k+2} - x_{k+1}); the corners' terms sum to zero.
+        N *= wa * (1.0 - 1.0 / J) / (2.0 * area) / norm
+        np.subtract(D0 * i00 + D1 * i01, _cross(N, e2), out=g1)
+        np.add(D1 * i11, _cross(N, e1), out=g2)
+        np.add(g1, g2, out=g0)
+        np.negative(g0, out=g0)
         return e
 
-    def _bending(self, X, g):
-        theta, grads = _dihedral_components(X, self.hinges, with_gradient=True)
-        r = theta - self.theta_rest
-        e = 0.5 * float(self.k_hinge @ (r * r))
-        kr = self.k_hinge * r
-        n = X.shape[1]
-        for i in range(3):
-            g[i] += np.bincount(self._hinge_idx, np.concatenate([kr * gk[i] for gk in grads]), n)
+    def _bending(self, X, out):
+        """Bending energy at ``X`` ((3, n) mm); writes each hinge vertex's gradient
+        to ``out`` ((3, 4h), vertex-major as ``hinges.T``)."""
+        h = len(self.hinges)
+        e = 0.0
+        for sl in _blocks(h):
+            theta, grads = _dihedral_components(X, [c[sl] for c in self._hinge_cols], True)
+            r = theta - self.theta_rest[sl]
+            kr = self.k_hinge[sl] * r
+            e += 0.5 * float(kr @ r)
+            for k, gk in enumerate(grads):
+                np.multiply(gk, kr, out=out[:, k * h + sl.start:k * h + sl.stop])
         return e
+
+
+def _blocks(count):
+    """Slices of at most :data:`_BLOCK` covering ``range(count)``."""
+    return [slice(i, min(i + _BLOCK, count)) for i in range(0, count, _BLOCK)]
 
 
 def nearest_orthonormal(F):
@@ -283,7 +327,8 @@ def dihedral(V, hinges, with_gradient=False):
     faces face up); negative for a valley (the inside of a bowl).
     With ``with_gradient``, also (h, 4, 3): d theta / d position of v0..v3.
     """
-    out = _dihedral_components(np.asarray(V, dtype=float).T, hinges, with_gradient)
+    out = _dihedral_components(np.asarray(V, dtype=float).T, np.asarray(hinges).T,
+                               with_gradient)
     if not with_gradient:
         return out
     theta, grads = out
@@ -291,36 +336,43 @@ def dihedral(V, hinges, with_gradient=False):
 
 
 def _dihedral_components(X, hinges, with_gradient=False):
-    """:func:`dihedral` on (3, n) positions, gradients as four (3, h) arrays (one per
-    hinge vertex): component rows keep every product a contiguous pass (four times
-    faster than (h, 3) rows and ``np.cross``)."""
-    x0, x1, x2, x3 = (np.take(X, hinges[:, k], axis=1) for k in range(4))
-    e = x1 - x0
-    n0 = _cross(e, x2 - x0)
-    n1 = _cross(x3 - x0, e)
+    """:func:`dihedral` on (3, n) positions, ``hinges`` as its four (h,) vertex
+    columns, gradients as four (3, h) arrays (one per hinge vertex): component rows
+    keep every product a contiguous pass (four times faster than (h, 3) rows and
+    ``np.cross``)."""
+    x0, x1, x2, x3 = (np.take(X, c, axis=1) for c in hinges)
+    e = np.subtract(x1, x0, out=x1)
+    a = np.subtract(x2, x0, out=x2)
+    b = np.subtract(x3, x0, out=x3)
+    n0 = _cross(e, a)
+    n1 = _cross(b, e)
     el = np.maximum(np.sqrt(_dot(e, e)), 1e-300)
-    ne0 = np.maximum(_dot(n0, n0), 1e-300)
-    ne1 = np.maximum(_dot(n1, n1), 1e-300)
-    theta = np.arctan2(_dot(_cross(n0, n1), e) / el, _dot(n0, n1))
+    theta = np.arctan2(_dot(_cross(n0, n1, out=x0), e) / el, _dot(n0, n1))
     if not with_gradient:
         return theta
     # Moving an opposite vertex along its face normal by its height turns the face
     # by one radian; the edge's ends share the opposite vertices' pull by where
     # those project onto the edge, so rigid motions leave theta unchanged.
-    g2 = -(el / ne0) * n0
-    g3 = -(el / ne1) * n1
+    g2 = np.multiply(n0, -el / np.maximum(_dot(n0, n0), 1e-300), out=n0)
+    g3 = np.multiply(n1, -el / np.maximum(_dot(n1, n1), 1e-300), out=n1)
     el2 = el * el
-    t2 = _dot(x2 - x0, e) / el2
-    t3 = _dot(x3 - x0, e) / el2
-    g0 = -(1.0 - t2) * g2 - (1.0 - t3) * g3
-    g1 = -t2 * g2 - t3 * g3
+    t2 = _dot(a, e) / el2
+    t3 = _dot(b, e) / el2
+    g0 = np.add(g2 * (t2 - 1.0), g3 * (t3 - 1.0), out=a)
+    g1 = np.add(g0, g2, out=b)
+    g1 += g3
+    np.negative(g1, out=g1)
     return theta, (g0, g1, g2, g3)
 
 
-def _cross(a, b):
-    """Cross products of (3, k) component arrays: (3, k)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
+def _cross(a, b, out=None):
+    """Cross products of (3, k) component arrays: (3, k) (``out`` if given, which
+    must not be ``a`` or ``b``)."""
+    c = np.empty_like(a) if out is None else out
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        np.multiply(a[j], b[k], out=c[i])
+        c[i] -= a[k] * b[j]
+    return c
 
 
 def _dot(a, b):
