@@ -20,7 +20,7 @@ shrink.
 
 import numpy as np
 
-from pipeline.layout.free import _svd2_angles, global_system, jacobians, local_global
+from pipeline.layout.free import global_system, jacobians, local_global
 
 ITERATIONS = 60
 # Singular values this far apart name the direction the layout stretches along.
@@ -68,17 +68,41 @@ def _project_labelled(J, d, lam_lo, lam_hi, a):
     are round-off, and ``d`` stays (the direction the program chose there), with the
     rotation nearest ``D^-1 J``, ``D = lambda d d^T + a e e^T``.
     Returns (P (m, 2, 2), lambda (m,), the print direction (m, 2) unit)."""
-    phi, s, theta = _svd2_angles(J)
-    u0 = np.stack([np.cos(phi), np.sin(phi)], axis=1)
-    u1 = np.stack([-np.sin(phi), np.cos(phi)], axis=1)
-    first = np.abs(np.einsum("mc,mc->m", u0, d)) >= np.sqrt(0.5)
-    distinct = s[:, 0] - np.abs(s[:, 1]) > DISTINCT
-    along = np.where(distinct[:, None], np.where(first[:, None], u0, u1), d)
-    along *= np.where(np.einsum("mc,mc->m", along, d) < 0, -1.0, 1.0)[:, None]
-    lam = np.clip(np.linalg.norm(np.einsum("mji,mj->mi", J, along), axis=1), lam_lo, lam_hi)
+    along = _print_direction(J, d)
+    x, y = along[:, 0], along[:, 1]
+    # |J^T along|, the stretch along the print direction.
+    lam = np.clip(_length(J[:, 0, 0] * x + J[:, 1, 0] * y, J[:, 0, 1] * x + J[:, 1, 1] * y),
+                  lam_lo, lam_hi)
     a = np.broadcast_to(np.asarray(a, dtype=float), lam.shape)
     P = _stretched_rotation(J, along, lam, a)
     return P, lam, along
+
+
+def _print_direction(J, d):
+    """:func:`_project_labelled`'s print direction: (m, 2) unit, on the side of ``d``.
+    Component arrays and no trigonometry: (m, 2) stacks, einsums, arctan2 and cos took
+    half the local step, and each costs as much as forty products."""
+    j00, j01, j10, j11 = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
+    # _svd2_angles's left rotation, phi = (angle(F, G) + angle(E, H)) / 2, as a line:
+    # the half of their sum up to sign (the side of d is chosen below).
+    E, F = (j00 + j11) / 2, (j00 - j11) / 2
+    G, H = (j10 + j01) / 2, (j10 - j01) / 2
+    (c1, s1, R), (c2, s2, Q) = _unit(F, G), _unit(E, H)
+    c, s = c1 * c2 - s1 * s2, s1 * c2 + c1 * s2
+    # (1 + c, s) and (s, 1 - c) both lie along the half angle; take the longer.
+    wide = c >= 0
+    cp, sp, _ = _unit(np.where(wide, 1.0 + c, s), np.where(wide, s, 1.0 - c))
+    dx, dy = d[:, 0], d[:, 1]
+    # The first singular vector (cp, sp) or the second (-sp, cp), whichever is nearer d.
+    first = np.abs(cp * dx + sp * dy) >= np.sqrt(0.5)
+    distinct = (Q + R) - np.abs(Q - R) > DISTINCT
+    ux = np.where(distinct, np.where(first, cp, -sp), dx)
+    uy = np.where(distinct, np.where(first, sp, cp), dy)
+    side = np.where(ux * dx + uy * dy < 0, -1.0, 1.0)
+    along = np.empty_like(d)
+    np.multiply(ux, side, out=along[:, 0])
+    np.multiply(uy, side, out=along[:, 1])
+    return along
 
 
 def _stretched_rotation(J, d, lam, a):
@@ -92,9 +116,27 @@ def _stretched_rotation(J, d, lam, a):
     # D^-1 = D with the stretches inverted (d and e are orthonormal).
     i00, i01, i11 = inv_l * xx + inv_a * yy, (inv_l - inv_a) * xy, inv_l * yy + inv_a * xx
     j00, j01, j10, j11 = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
-    angle = np.arctan2((i01 * j00 + i11 * j10) - (i00 * j01 + i01 * j11),
-                       (i00 * j00 + i01 * j10) + (i01 * j01 + i11 * j11))
-    c, s = np.cos(angle), np.sin(angle)
+    c, s, _ = _unit((i00 * j00 + i01 * j10) + (i01 * j01 + i11 * j11),
+                 (i01 * j00 + i11 * j10) - (i00 * j01 + i01 * j11))
     d00, d01, d11 = lam * xx + a * yy, (lam - a) * xy, lam * yy + a * xx
-    return np.stack([np.stack([d00 * c + d01 * s, d01 * c - d00 * s], axis=1),
-                     np.stack([d01 * c + d11 * s, d11 * c - d01 * s], axis=1)], axis=1)
+    P = np.empty_like(J)
+    P[:, 0, 0], P[:, 0, 1] = d00 * c + d01 * s, d01 * c - d00 * s
+    P[:, 1, 0], P[:, 1, 1] = d01 * c + d11 * s, d11 * c - d01 * s
+    return P
+
+
+def _unit(x, y):
+    """Cosine and sine of the angle of the vectors ``(x, y)`` ((m,) each), as
+    ``arctan2`` gives it (0 for a zero vector), and their length: three (m,)."""
+    r = _length(x, y)
+    zero = r == 0
+    if zero.any():
+        x, y = np.where(zero, 1.0, x), np.where(zero, 0.0, y)
+        return x / np.where(zero, 1.0, r), y / np.where(zero, 1.0, r), r
+    return x / r, y / r, r
+
+
+def _length(x, y):
+    """``np.hypot`` for Jacobian entries, O(1): its guard against overflow costs as much
+    as forty products."""
+    return np.sqrt(x * x + y * y)
