@@ -174,7 +174,9 @@ def projected(J, lam_lo, lam_hi):
     a, b, c, d = J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1]
     E, F = (a + d) / 2, (a - d) / 2
     G, H = (c + b) / 2, (c - b) / 2
-    Q, R = np.hypot(E, H), np.hypot(F, G)
+    # Not np.hypot: its guard against overflow costs as much as forty products, and
+    # Jacobian entries are O(1).
+    Q, R = np.sqrt(E * E + H * H), np.sqrt(F * F + G * G)
     lam = np.clip(Q + R, lam_lo, lam_hi)
     qs = (lam + 1) / (2 * np.maximum(Q, 1e-300))
     rs = (lam - 1) / (2 * np.maximum(R, 1e-300))
