@@ -106,13 +106,23 @@ class GuideField:
     def _rc(self, xy):
         p = self.pixel_mm
         xy = np.asarray(xy, dtype=float)
-        return np.stack([(self.rows - 1 - PAD_PX) - xy[..., 1] / p, xy[..., 0] / p + PAD_PX])
+        rc = np.empty((2,) + xy.shape[:-1])
+        np.subtract(self.rows - 1 - PAD_PX, xy[..., 1] / p, out=rc[0])
+        np.add(xy[..., 0] / p, PAD_PX, out=rc[1])
+        return rc
+
+    @staticmethod
+    def _at(grid, rc, order=1):
+        # The output array given: without it map_coordinates spends most of a call of a
+        # few points looking up the name of the input's dtype to allocate one.
+        out = np.empty(rc.shape[1:], dtype=grid.dtype)
+        ndimage.map_coordinates(grid, rc.reshape(2, -1), output=out.reshape(-1),
+                                order=order, mode="nearest")
+        return out
 
     def sample(self, grid, xy, order=1):
         """Sample a padded grid (e.g. ``self.g``) at points ``xy`` ((..., 2) mm)."""
-        rc = self._rc(xy)
-        return ndimage.map_coordinates(grid, rc.reshape(2, -1), order=order,
-                                       mode="nearest").reshape(rc.shape[1:])
+        return self._at(grid, self._rc(xy), order)
 
     def value(self, xy):
         return self.sample(self.g, xy)
@@ -122,7 +132,11 @@ class GuideField:
         return self.sample(self.z, xy)
 
     def gradient(self, xy):
-        return np.stack([self.sample(self.gx, xy), self.sample(self.gy, xy)], axis=-1)
+        rc = self._rc(xy)
+        out = np.empty(rc.shape[1:] + (2,))
+        out[..., 0] = self._at(self.gx, rc)
+        out[..., 1] = self._at(self.gy, rc)
+        return out
 
     def axes(self):
         """1-D x and (increasing) y coordinates of the padded grid, and the flip for y."""
