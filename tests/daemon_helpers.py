@@ -134,11 +134,10 @@ def jobs(config):
     """Stored jobs as dicts, read from the daemon's store in this process (read-only; works
     with or without a daemon). Polling through ``hostd jobs --json`` cost a Python start-up
     per poll, about a core's worth while two daemons printed; :func:`cli_jobs` is that command."""
-    from hostd.config import load_config
     from hostd.errors import HostdError
     from hostd.jobs import JobStore
     try:
-        store = JobStore(load_config(config).db_path, create=False)
+        store = JobStore(_db_path(config), create=False)
     except HostdError as exc:
         assert exc.code == "jobs.missing", exc
         return []    # the daemon has not created its store yet
@@ -148,6 +147,18 @@ def jobs(config):
         store.close()
 
 
+_DB_PATHS = {}
+
+
+def _db_path(config):
+    """The job store's path in ``config``, read again only when the file changed (the tests
+    poll :func:`jobs` every 0.05 s; parsing the YAML was most of a poll)."""
+    key = (str(config), os.stat(config).st_mtime_ns)
+    if key not in _DB_PATHS:
+        _DB_PATHS[key] = load_config(config).db_path
+    return _DB_PATHS[key]
+
+
 def cli_jobs(config):
     """``hostd jobs --json``: the same rows as :func:`jobs`, through the command."""
     r = hostd("jobs", "--json", "-c", config)
@@ -155,7 +166,9 @@ def cli_jobs(config):
     return json.loads(r.stdout)
 
 
-def wait_for(predicate, timeout=60, what="condition", proc=None):
+def wait_for(predicate, timeout=60, what="condition", proc=None, every=0.05):
+    """Polls ``predicate`` every ``every`` s (a read of the job store costs ~1 ms: the wait
+    that ends a step is not what the tests measure) until it holds; fails after ``timeout``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = predicate()
@@ -164,7 +177,7 @@ def wait_for(predicate, timeout=60, what="condition", proc=None):
         if proc is not None and proc.proc.poll() is not None:
             raise AssertionError("daemon exited (%s) waiting for %s:\n%s"
                                  % (proc.proc.returncode, what, proc.output()[-3000:]))
-        time.sleep(0.2)
+        time.sleep(every)
     raise AssertionError("timed out waiting for %s%s" % (
         what, ("\n" + proc.output()[-3000:]) if proc else ""))
 
