@@ -60,7 +60,7 @@ def test_page_in_headless_chromium(tmp_path):
         while not printing():
             assert time.monotonic() < deadline, "no print started:\n" + d.output()[-3000:]
             assert d.proc.poll() is None, d.output()[-3000:]
-            time.sleep(0.3)
+            time.sleep(0.05)
 
         browser = Chromium()
         browser.goto(base + "/")
@@ -124,7 +124,7 @@ def test_print_anyway_in_headless_chromium(tmp_path):
         deadline = time.monotonic() + 120
         while not job().get("decision"):
             assert time.monotonic() < deadline, "no job waits:\n" + d.output()[-3000:]
-            time.sleep(0.3)
+            time.sleep(0.05)
         assert job()["state"] == "ready"
         browser = Chromium()
         browser.goto(base + "/jobs/" + job()["id"])
@@ -136,7 +136,7 @@ def test_print_anyway_in_headless_chromium(tmp_path):
         deadline = time.monotonic() + 60
         while job()["state"] == "ready":
             assert time.monotonic() < deadline, "not approved:\n" + d.output()[-3000:]
-            time.sleep(0.3)
+            time.sleep(0.05)
         assert job()["decision"] is None and job()["state"] in ("printing", "done")
     finally:
         if browser is not None:
@@ -167,7 +167,7 @@ def test_bed_is_clear_in_headless_chromium(tmp_path):
         while not predicate():
             assert time.monotonic() < deadline, "%s:\n%s" % (what, d.output()[-3000:])
             assert d.proc.poll() is None, d.output()[-3000:]
-            time.sleep(0.3)
+            time.sleep(0.05)
 
     def waiting():
         return get_json(base + "/api/status")[1]["waiting_for_person"]

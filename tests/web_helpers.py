@@ -40,7 +40,7 @@ def wait_http(url, timeout=30.0):
         try:
             return get_json(url, timeout=1.0)
         except (OSError, ValueError):
-            time.sleep(0.1)
+            time.sleep(0.05)
     raise AssertionError("no answer from %s in %.0f s" % (url, timeout))
 
 
@@ -66,7 +66,7 @@ class Chromium:
                 _, pages = get_json("http://127.0.0.1:%d/json/list" % port, timeout=1.0)
                 target = next((p for p in pages if p.get("type") == "page"), None)
             except (OSError, ValueError):
-                time.sleep(0.2)
+                time.sleep(0.05)
         self.ws = websocket.create_connection(target["webSocketDebuggerUrl"], timeout=30,
                                               suppress_origin=True)
         self._id = 0
@@ -87,7 +87,7 @@ class Chromium:
         while self.js("document.readyState") != "complete":
             if time.monotonic() > deadline:
                 raise AssertionError("page %s did not load" % url)
-            time.sleep(0.1)
+            time.sleep(0.05)
 
     def js(self, expression):
         result = self.call("Runtime.evaluate", expression=expression, returnByValue=True)
@@ -104,7 +104,7 @@ class Chromium:
                 value = None
             if value:
                 return value
-            time.sleep(0.2)
+            time.sleep(0.05)
         raise AssertionError("timed out waiting for %s" % (what or expression))
 
     def screenshot(self, path):
