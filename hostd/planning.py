@@ -1,7 +1,9 @@
 """Planning in worker processes, so the GIL never stalls serial streaming.
 
-Each plan runs in its own child (``python -m hostd.planning``), which loads its
-libraries and then limits its address space (RLIMIT_AS) and CPU time (RLIMIT_CPU);
+Each plan runs in its own child, forked by the planning server
+(:mod:`hostd.planserver`, which has the libraries loaded) or, where that cannot start,
+run as ``python -m hostd.planning``, which loads them itself; the child then limits its
+address space (RLIMIT_AS) and CPU time (RLIMIT_CPU);
 the parent also kills it after ``time_limit_s`` of wall time, and on Linux the kernel
 kills it when the thread that started it (the daemon's loop) dies. A plan that crashes,
 runs out of memory or runs away fails its own job only. The child writes
@@ -13,6 +15,8 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -33,14 +37,12 @@ class PlanProcess:
         args = json.dumps({"input": str(input_path), "profile": profile, "outdir": str(outdir),
                            "memory_mb": int(memory_mb), "cpu_s": int(time_limit_s) + 5,
                            "parent_pid": os.getpid(), "keep": keep and str(keep)})
-        env = dict(os.environ)
-        env["PYTHONPATH"] = _REPO + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        # Few threads per child: several plans must not starve the streaming thread.
-        env.setdefault("OMP_NUM_THREADS", "1")
-        env.setdefault("OPENBLAS_NUM_THREADS", "1")
-        self.proc = subprocess.Popen([sys.executable, "-m", "hostd.planning", args],
-                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, env=env, start_new_session=True)
+        self.proc = _server().start(args) if sys.platform.startswith("linux") else None
+        if self.proc is None:
+            self.proc = subprocess.Popen([sys.executable, "-m", "hostd.planning", args],
+                                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                         stderr=subprocess.PIPE, env=_child_env(),
+                                         start_new_session=True)
         self.pid = self.proc.pid
 
     def poll(self):
@@ -86,6 +88,145 @@ class PlanProcess:
             self.proc.stderr.close()
 
 
+def _child_env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = _REPO + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    # Few threads per child: several plans must not starve the streaming thread.
+    env.setdefault("OMP_NUM_THREADS", "1")
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    return env
+
+
+class _Server:
+    """The daemon's end of :mod:`hostd.planserver`: ``start(args)`` -> a :class:`_Forked`
+    plan, or None where the server cannot be had (the caller runs the plan itself)."""
+
+    def __init__(self):
+        self.proc = None
+        self.exits = {}               # pid -> exit code, from the server's reports
+        self.replies = []
+        self.cond = threading.Condition()
+
+    def alive(self):
+        return self.proc is not None and self.proc.poll() is None
+
+    def start(self, args):
+        with self.cond:
+            if not self.alive() and not self._launch():
+                return None
+            stderr = tempfile.NamedTemporaryFile(prefix="hostd-plan-", suffix=".stderr",
+                                                 delete=False)
+            stderr.close()
+            try:
+                # The daemon's environment now (a profile folder named there), not the
+                # one the server started with.
+                self.proc.stdin.write(json.dumps({"args": args, "stderr": stderr.name,
+                                                  "env": _child_env()}) + "\n")
+                self.proc.stdin.flush()
+            except OSError:
+                os.unlink(stderr.name)
+                return None
+            # The server answers as soon as it forked; it loaded its libraries first.
+            if not self.cond.wait_for(lambda: self.replies or not self.alive(), timeout=120):
+                self.proc.kill()
+            if not self.replies:
+                os.unlink(stderr.name)
+                return None
+            return _Forked(self, self.replies.pop(0), self.proc, stderr.name)
+
+    def _launch(self):
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "hostd.planserver", str(os.getpid())],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                env=_child_env(), start_new_session=True, text=True, bufsize=1)
+        except OSError:
+            self.proc = None
+            return False
+        self.replies = []
+        threading.Thread(target=self._read, args=(self.proc,), daemon=True,
+                         name="planserver").start()
+        return True
+
+    def _read(self, proc):
+        for line in proc.stdout:
+            try:
+                msg = json.loads(line)
+            except ValueError:
+                continue
+            with self.cond:
+                if "exit" in msg:
+                    self.exits[msg["exit"]] = msg["code"]
+                else:
+                    self.replies.append(msg["pid"])
+                self.cond.notify_all()
+        with self.cond:
+            self.cond.notify_all()
+
+
+class _Forked:
+    """A plan the server forked, as much of ``subprocess.Popen`` as :class:`PlanProcess`
+    uses: ``pid``, ``poll()``, ``wait()``, ``kill()``, ``stderr`` (read once it ended)."""
+
+    def __init__(self, server, pid, server_proc, stderr_path):
+        self.server, self.pid, self._server_proc = server, pid, server_proc
+        self._stderr_path = stderr_path
+        self.stderr = None
+
+    returncode = None
+
+    def poll(self):
+        if self.returncode is not None:
+            return self.returncode
+        with self.server.cond:
+            code = self.server.exits.pop(self.pid, None)
+            if code is None and self._server_proc.poll() is not None:
+                # The server died, and its plans with it: nothing will report this one.
+                code = -9
+            if code is None:
+                return None
+        self.returncode = code
+        self._take_stderr()
+        return code
+
+    def wait(self, timeout=None):
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired("plan %d" % self.pid, timeout)
+            with self.server.cond:
+                self.server.cond.wait(0.05)
+        return self.returncode
+
+    def kill(self):
+        if self.returncode is None:
+            try:
+                os.kill(self.pid, 9)
+            except ProcessLookupError:
+                pass
+
+    def _take_stderr(self):
+        import io
+        try:
+            with open(self._stderr_path, "rb") as f:
+                self.stderr = io.BytesIO(f.read())
+            os.unlink(self._stderr_path)
+        except OSError:
+            self.stderr = io.BytesIO(b"")
+
+
+_SERVER = None
+_SERVER_LOCK = threading.Lock()
+
+
+def _server():
+    global _SERVER
+    with _SERVER_LOCK:
+        if _SERVER is None:
+            _SERVER = _Server()
+        return _SERVER
+
+
 def _read_result(path):
     from hostd import share
     from hostd.errors import HostdError
@@ -103,6 +244,24 @@ def _limit(memory_mb, cpu_s):
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     if cpu_s:
         resource.setrlimit(resource.RLIMIT_CPU, (int(cpu_s), int(cpu_s) + 2))
+
+
+# Address space a plan needs beyond its libraries before it plans anything at all.
+START_MB = 64
+
+
+def _room_to_plan(memory_mb):
+    """Raise MemoryError where ``memory_mb`` leaves the plan less than :data:`START_MB`
+    beyond what its loaded libraries already map: the first allocations would fail, and
+    some fail inside numpy's indexing, which then crashes (SIGSEGV) instead of raising.
+    Linux only (elsewhere the plan finds out as it runs)."""
+    try:
+        with open("/proc/self/status") as f:
+            size_kb = next(int(line.split()[1]) for line in f if line.startswith("VmSize:"))
+    except (OSError, StopIteration, ValueError):
+        return
+    if memory_mb and size_kb / 1024 + START_MB > int(memory_mb):
+        raise MemoryError("%d MB of libraries" % (size_kb / 1024))
 
 
 def plan_result(plan):
@@ -187,14 +346,18 @@ def child_main(argv):
     from pipeline.profiles.profile import load_profile
     _limit(args.get("memory_mb"), args.get("cpu_s"))
     try:
+        _room_to_plan(args.get("memory_mb"))
         profile = load_profile(args["profile"])
         result = plan_result(planner.run(args["input"], profile, outdir,
                                          progress=_stage_writer(outdir), keep=args.get("keep")))
     except PipelineError as exc:
         result = dict(exc.to_dict(), ok=False)
-    except MemoryError:
+    except MemoryError as exc:
+        start = str(exc) if "libraries" in str(exc) else ""
         result = {"ok": False, "code": "plan.memory_limit",
-                  "text": "planning ran out of memory (limit %s MB)" % args.get("memory_mb"),
+                  "text": "planning ran out of memory (limit %s MB%s)" % (
+                      args.get("memory_mb"), start and ", less than the %s it loads and "
+                      "%d MB more to start" % (start, START_MB)),
                   "fix": "raise planning.memory_mb in hostd.yaml or use a smaller input"}
     except OSError as exc:
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
