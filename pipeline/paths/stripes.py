@@ -211,68 +211,47 @@ def chain(keys):
     ends = np.arange(2 * s)
     # Entered at end e, the walk leaves by e ^ 1 and enters the next segment at succ[e].
     succ = partner[ends ^ 1]
-    last, rank, cyclic = _walks(succ)
-    # Open polylines: from each free end, the walk leaves by the free end ``last ^ 1``.
     free = np.flatnonzero(partner < 0)
-    start = free[free <= (last[free] ^ 1)]
-    out = _ordered(start, last, rank, ~cyclic, closed=False)
-    if cyclic.any():
-        # A ring's two ways round: the one entered at end 0 of its lowest segment (its
-        # least entered end, even) is walked, cut before that end.
-        least = _ring_least(succ, cyclic)
-        start = np.flatnonzero(cyclic & (least == ends))
-        start = start[start % 2 == 0]
-        cut = succ.copy()
-        ring = cyclic & (least % 2 == 0)
-        cut[~ring] = -1
-        cut[np.isin(cut, start) & ring] = -1
-        last, rank, _ = _walks(cut)
-        out += _ordered(start, last, rank, ring, closed=True)
-    return out
+    walks = _depth_first_walks(succ, np.r_[free, ends])
+    # Open polylines: walked from both free ends, kept from the lower one (the walk
+    # leaves by the free end ``last ^ 1``); every node of theirs is then taken, and
+    # the walks from the nodes left go round rings, each both ways: entered first at
+    # its least end (end 0 of its lowest segment), then at the one after it.
+    first = np.array([w[0] for w in walks], np.int64)
+    last = np.array([w[-1] for w in walks], np.int64)
+    open_ = partner[first] < 0
+    keep = np.where(open_, first <= (last ^ 1), first % 2 == 0)
+    return ([(w, False) for w, k, o in zip(walks, keep, open_) if k and o]
+            + [(w, True) for w, k, o in zip(walks, keep, open_) if k and not o])
 
 
-def _walks(succ):
-    """Where each walk along ``succ`` ((q,) next node, -1 at an end) ends, how many steps
-    it takes, and which nodes lie on rings (their walks never end): pointer jumping,
-    (q,), (q,), (q,) bool."""
-    q = len(succ)
-    jump = np.where(succ >= 0, succ, np.arange(q))
-    rank = (succ >= 0).astype(np.int64)
-    for _ in range(_doublings(q)):
-        rank = rank + rank[jump]
-        jump = jump[jump]
-    return jump, rank, succ[jump] >= 0
+def _depth_first_walks(succ, starts):
+    """The walks along ``succ`` ((q,) next node, -1 at an end) from each of ``starts``
+    in turn that is not yet on an earlier walk, each up to its end or to a node
+    already walked: list of (k,) int64.
 
-
-def _doublings(q):
-    """Jumps, each doubling the reach, that cover any walk over ``q`` nodes."""
-    return int(np.ceil(np.log2(max(q, 2)))) + 1
-
-
-def _ring_least(succ, cyclic):
-    """Each ring node's least node round its ring (others: themselves): (q,)."""
-    q = len(succ)
-    least = np.arange(q)
-    jump = np.where(cyclic, succ, least)
-    for _ in range(_doublings(q)):
-        least = np.minimum(least, least[jump])
-        jump = jump[jump]
-    return least
-
-
-def _ordered(start, last, rank, member, closed):
-    """The walks from ``start`` (ascending), each as (its nodes in order, ``closed``): a
-    node belongs to the walk that ends where its own does."""
-    start = np.sort(start)
-    if not len(start):
-        return []
-    which = np.full(len(last), -1, dtype=np.int64)
-    which[last[start]] = np.arange(len(start))
-    nodes = np.flatnonzero(member & (which[last] >= 0))
-    walk = which[last[nodes]]
-    nodes = nodes[np.lexsort((-rank[nodes], walk))]
-    cuts = np.cumsum(np.bincount(walk, minlength=len(start)))[:-1]
-    return [(steps, closed) for steps in np.split(nodes, cuts)]
+    Each node has one successor, so the walks are the runs of a depth-first order
+    from a chain of virtual nodes, one before each start: one pass over the nodes
+    in compiled code, where doubling pointers took twenty (0.35 s of the 175 mm
+    dome's 233 thousand segments)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import depth_first_order
+    q, v = len(succ), len(starts)
+    has = succ >= 0
+    # Node rows: their successor; virtual row i: start i, then virtual node i + 1.
+    count = np.r_[has.astype(np.int64), np.full(v - 1, 2), 1]
+    indptr = np.r_[0, np.cumsum(count)]
+    indices = np.empty(indptr[-1], np.int64)
+    indices[indptr[:q][has]] = succ[has]
+    row = indptr[q:-1]
+    indices[row] = starts
+    indices[row[:-1] + 1] = q + 1 + np.arange(v - 1)
+    graph = csr_matrix((np.ones(len(indices), np.int8), indices, indptr), shape=(q + v,) * 2)
+    order = depth_first_order(graph, q, directed=True, return_predecessors=False)
+    edge = np.diff(np.r_[0, (order < q).astype(np.int8), 0])
+    order = order.astype(np.int64)
+    return [order[a:b] for a, b in zip(np.flatnonzero(edge > 0).tolist(),
+                                        np.flatnonzero(edge < 0).tolist())]
 
 
 def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True, sheet=None):
