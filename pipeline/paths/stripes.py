@@ -153,8 +153,9 @@ def stripe_segments(xy, faces, u, ok, chunk=SEGMENT_CHUNK):
     xy = np.asarray(xy, dtype=float)
     f_ok = np.flatnonzero(ok)
     uf = u[f_ok]
-    lo = np.ceil(uf.min(axis=1) - 0.5)
-    hi = np.floor(uf.max(axis=1) - 0.5)
+    # Column by column: a reduction along rows of three is twenty times slower.
+    lo = np.ceil(np.minimum(np.minimum(uf[:, 0], uf[:, 1]), uf[:, 2]) - 0.5)
+    hi = np.floor(np.maximum(np.maximum(uf[:, 0], uf[:, 1]), uf[:, 2]) - 0.5)
     count = np.maximum(hi - lo + 1, 0).astype(np.int64)
     f = np.repeat(f_ok, count)
     first = np.repeat(lo, count)
@@ -240,13 +241,14 @@ def _depth_first_walks(succ, starts):
     has = succ >= 0
     # Node rows: their successor; virtual row i: start i, then virtual node i + 1.
     count = np.r_[has.astype(np.int64), np.full(v - 1, 2), 1]
-    indptr = np.r_[0, np.cumsum(count)]
-    indices = np.empty(indptr[-1], np.int64)
+    indptr = np.r_[0, np.cumsum(count)].astype(np.int32)
+    indices = np.empty(indptr[-1], np.int32)
     indices[indptr[:q][has]] = succ[has]
     row = indptr[q:-1]
     indices[row] = starts
     indices[row[:-1] + 1] = q + 1 + np.arange(v - 1)
-    graph = csr_matrix((np.ones(len(indices), np.int8), indices, indptr), shape=(q + v,) * 2)
+    # Already of the types the traversal takes: no copies of the graph.
+    graph = csr_matrix((np.ones(len(indices)), indices, indptr), shape=(q + v,) * 2)
     order = depth_first_order(graph, q, directed=True, return_predecessors=False)
     edge = np.diff(np.r_[0, (order < q).astype(np.int8), 0])
     order = order.astype(np.int64)
