@@ -179,7 +179,7 @@ def join_ends(chains, pw, max_mm, footprint, samples, label, tree, over_mm=0.0):
     cid = np.flatnonzero(open_)
     if len(cid) < 2:
         return np.zeros((0, 2), np.int64)
-    ends = np.concatenate([np.stack([chains[c][0][0], chains[c][0][-1]]) for c in cid])
+    ends = _end_points(chains)[2 * cid[:, None] + np.arange(2)].reshape(-1, 2)
     end_id = (2 * cid[:, None] + np.arange(2)).ravel()
     end_tree = cKDTree(ends)
     k = min(NEAREST + 1, len(ends))
@@ -214,7 +214,10 @@ def _pair_keys(i, j, n):
     """Unordered pairs ``i - j`` of ``n`` ends, without self pairs or repeats, each as
     one sorted key ``lo * n + hi``: (p,) int."""
     lo, hi = np.minimum(i, j), np.maximum(i, j)
-    return np.unique((lo * n + hi)[lo != hi])
+    # Sorted, then the repeats dropped: np.unique's hashing took 50 times as long on
+    # these keys (0.24 s for the coast tile's 340 thousand candidate pairs).
+    keys = np.sort((lo * n + hi)[lo != hi])
+    return keys[np.r_[True, keys[1:] != keys[:-1]]] if len(keys) else keys
 
 
 class _Hops:
@@ -227,6 +230,7 @@ class _Hops:
         self.chains, self.ends, self.end_id, self.footprint = chains, ends, end_id, footprint
         self.pw, self.over_mm, self.sampled = pw, over_mm, sampled
         self.from_end = end_distances(*sampled[:2])
+        self.outward = _outward(chains)
         self.a = self.b = np.zeros((0, 2))
         self.ea = self.eb = np.zeros(0, np.int64)
         self.length = self.cost = self.known = np.zeros(0)
@@ -244,7 +248,7 @@ class _Hops:
         a, b, ea, eb = a[keep], b[keep], ea[keep], eb[keep]
         length = np.linalg.norm(b - a, axis=1)
         # A turn costs two widths: across a gap, running straight on beats a U-turn.
-        cost = length + 2 * self.pw * _turn(self.chains, ea, eb, a, b)
+        cost = length + 2 * self.pw * _turn(self.outward, ea, eb, a, b)
         inside = shapely.contains(self.footprint, shapely.linestrings(np.stack([a, b], axis=1)))
         self.a, self.b = np.concatenate([self.a, a]), np.concatenate([self.b, b])
         self.ea, self.eb = np.concatenate([self.ea, ea]), np.concatenate([self.eb, eb])
@@ -277,25 +281,32 @@ class _Hops:
         return ok
 
 
-def _turn(chains, ea, eb, a, b):
-    """How far a hop turns away from the paths it joins: 0 where it runs straight on
-    from one into the other, 1 where it crosses over between two side by side (a U-turn),
-2 where it doubles back at both ends."""
+def _turn(outward, ea, eb, a, b):
+    """How far a hop turns away from the paths it joins (``outward`` of
+    :func:`_outward`): 0 where it runs straight on from one into the other, 1 where it
+    crosses over between two side by side (a U-turn), 2 where it doubles back at both
+    ends."""
     h = b - a
     h = h / np.maximum(np.linalg.norm(h, axis=1), 1e-12)[:, None]
-    out_a = _outward(chains, ea)
-    out_b = _outward(chains, eb)
+    out_a, out_b = outward[ea], outward[eb]
     return (2 - np.einsum("hc,hc->h", out_a, h) + np.einsum("hc,hc->h", out_b, h)) / 2
 
 
-def _outward(chains, e):
-    """Unit direction in which each path leaves through end ``e``: (h, 2)."""
-    uniq, inv = np.unique(e, return_inverse=True)
-    d = np.empty((len(uniq), 2))
-    for k, end in enumerate(uniq.tolist()):
-        p = chains[end // 2][0]
-        d[k] = p[0] - p[1] if end % 2 == 0 else p[-1] - p[-2]
-    d = d[inv]
+def _end_points(chains, inner=0):
+    """Each chain's first and last point, or with ``inner`` = 1 the points next to
+    them (a one-point chain's own): (2 c + 0 or 1, 2) mm, all chains' points gathered
+    at once (a stack per chain took 0.03 s a set on the coast tile)."""
+    size = np.array([len(p) for p, _, _ in chains])
+    first = np.cumsum(size) - size
+    last = first + size - 1
+    at = np.stack([np.minimum(first + inner, last), np.maximum(last - inner, first)], axis=1)
+    return np.concatenate([p for p, _, _ in chains])[at.ravel()]
+
+
+def _outward(chains):
+    """Unit direction in which each path leaves through each end (``2 c`` its first
+    point, ``2 c + 1`` its last): (2 c, 2)."""
+    d = _end_points(chains) - _end_points(chains, inner=1)
     return d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
 
 
@@ -363,7 +374,9 @@ def _neighbours(x, y):
     src, dst = src[order], dst[order]
     cut = np.flatnonzero(np.diff(src)) + 1
     keys = src[np.concatenate([[0], cut])] if len(src) else src
-    return dict(zip(keys.tolist(), (d.tolist() for d in np.split(dst, cut))))
+    # Slices of one list: an array and a list per end took 0.03 s a set on the coast tile.
+    dst, bounds = dst.tolist(), [0] + cut.tolist() + [len(dst)]
+    return {k: dst[a:b] for k, a, b in zip(keys.tolist(), bounds[:-1], bounds[1:])}
 
 
 def _alternating_path(a, adj, partner, depth):
