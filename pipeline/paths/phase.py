@@ -25,16 +25,17 @@ def stripe_matrix(sheet, X, width_mm):
     """The stripe energy of a phase along the vertex field ``X`` ((n, 2) unit) on
     ``sheet`` (:class:`pipeline.paths.sheet.Sheet`): the sparse (2n, 2n) matrix over the
     real and imaginary parts of the vertex values, and its diagonal per vertex ((n,))."""
-    xy, (i, j) = sheet.xy, sheet.edges.T
-    s = np.where(np.einsum("ec,ec->e", X[i], X[j]) < 0, -1.0, 1.0)
-    omega = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[j] - xy[i],
-                                             0.5 * (X[i] + s[:, None] * X[j]))
+    i, j = sheet.edges.T
+    Xi, Xj = X[i], X[j]
+    s = np.where(np.einsum("ec,ec->e", Xi, Xj) < 0, -1.0, 1.0)
+    omega = 2 * np.pi / width_mm * np.einsum("ec,ec->e", sheet.edge_vectors,
+                                             0.5 * (Xi + s[:, None] * Xj))
     w = sheet.weights
     c, sn = w * np.cos(omega), w * np.sin(omega)
     # Transport of vertex i's value to j: rotation by omega, then conjugation if the
     # line field turns over along the edge, T = [[c, -sn], [s sn, s c]]; A_ji = -w T.
     block = -np.stack([c, -sn, s * sn, s * c])
-    diag = np.bincount(np.concatenate([i, j]), np.concatenate([w, w]), len(xy))
+    diag = sheet.weight_sums
     return sheet.matrix(block, diag), diag
 
 
