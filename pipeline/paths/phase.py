@@ -46,23 +46,27 @@ def corner_phases(xy, faces, phase, X, width_mm):
     fork of the stripes, where one path ends between two), ``BRANCH`` the line field
     turns over in it."""
     xy = np.asarray(xy, dtype=float)
-    Xf = X[faces]                                            # (m, 3, 2)
-    sign = np.where(np.einsum("mkc,mc->mk", Xf, Xf[:, 0]) < 0, -1.0, 1.0)
-    Xl = Xf * sign[:, :, None]
+    # Component by component, (m, 3) each: the (m, 3, 2) corner arrays and their
+    # einsums took twice as long, for the same sums.
+    fx, fy = X[:, 0][faces], X[:, 1][faces]
+    sign = np.where(fx * fx[:, :1] + fy * fy[:, :1] < 0, -1.0, 1.0)
+    lx, ly = fx * sign, fy * sign
     ph = phase[faces] * sign
-    P = xy[faces]
+    px, py = xy[:, 0][faces], xy[:, 1][faces]
+    scale = 2 * np.pi / width_mm
     u = np.zeros(ph.shape)
     total = np.zeros(len(faces))
     for k in range(3):
         a, b = k, (k + 1) % 3
-        om = 2 * np.pi / width_mm * np.einsum("mc,mc->m", P[:, b] - P[:, a],
-                                              0.5 * (Xl[:, a] + Xl[:, b]))
+        om = scale * ((px[:, b] - px[:, a]) * (0.5 * (lx[:, a] + lx[:, b]))
+                      + (py[:, b] - py[:, a]) * (0.5 * (ly[:, a] + ly[:, b])))
         step = om + _wrap(ph[:, b] - ph[:, a] - om)
         if b != 0:
             u[:, b] = u[:, a] + step
         total += step
     u = (u + ph[:, :1]) / (2 * np.pi)
-    branch = np.einsum("mkc,mkc->mk", Xf, np.roll(Xf, -1, axis=1)).prod(axis=1) < 0
+    turn = [fx[:, k] * fx[:, (k + 1) % 3] + fy[:, k] * fy[:, (k + 1) % 3] for k in range(3)]
+    branch = turn[0] * turn[1] * turn[2] < 0
     winding = np.abs(np.rint(total / (2 * np.pi))) > 0
     return u, np.where(branch, BRANCH, np.where(winding, FORK, 0)).astype(np.int8)
 
