@@ -24,16 +24,17 @@ RELAX_SWEEPS = 10
 FORK_SPLITS = 2
 
 
-def split(xy, faces, phase, X, width_mm, red):
+def split(xy, faces, phase, X, width_mm, red, sides=None):
     """Split the triangles ``red`` ((m,) bool) in four, and in two those of their
-    neighbours that share one split side (:func:`pipeline.paths.sheet.split_mesh`).
+    neighbours that share one split side (:func:`pipeline.paths.sheet.split_mesh`;
+    ``sides`` as it takes them).
 
     Each new vertex, the midpoint of a side from ``a`` to ``b``, takes the line field
     ``X[a] + X[b]`` (turned to agree) and the phase of ``a`` plus half the side's step,
     so the paths through a triangle split in two run where they did.
 
     Returns (xy, faces, phase, X, parent: (m2,) the input triangle of each)."""
-    xy2, faces2, parent, sides = split_mesh(xy, faces, red)
+    xy2, faces2, parent, sides = split_mesh(xy, faces, red, sides)
     phase2, X2 = carry(xy, phase, X, sides, width_mm)
     return xy2, faces2, phase2, X2, parent
 
@@ -81,11 +82,14 @@ def refine_phase(sheet, normal, phase, X, width_mm, sweeps=RELAX_SWEEPS,
     phase, X = relax(fine, normal[parent], phase, X, width_mm, sweeps)
     xy, sub = fine.xy, fine.faces
     u, pathless = corner_phases(xy, sub, phase, X, width_mm)
+    # The finer sheet's sides are known from its energy; those of its splits are not.
+    sides = fine.face_edges, fine.edges
     for _ in range(fork_splits):
         if not pathless.any():
             break
         n = len(xy)
-        xy, sub, phase, X, p = split(xy, sub, phase, X, width_mm, pathless > 0)
+        xy, sub, phase, X, p = split(xy, sub, phase, X, width_mm, pathless > 0, sides)
+        sides = None
         parent = parent[p]
         # Triangles not split keep their corners' values: only the new ones are asked.
         new = (sub >= n).any(axis=1)

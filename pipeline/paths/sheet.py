@@ -129,14 +129,16 @@ class Sheet:
         """Every triangle split in four at its sides' midpoints: (the finer
         :class:`Sheet`, (m4,) the triangle each came from, (k, 2) the side each new
         vertex halves, new vertices numbered from n in this order)."""
-        xy, faces, parent, sides = split_mesh(self.xy, self.faces, np.ones(len(self.faces), bool))
+        xy, faces, parent, sides = split_mesh(self.xy, self.faces, np.ones(len(self.faces), bool),
+                                              self._sides)
         return Sheet(xy, faces), parent, sides
 
 
-def split_mesh(xy, faces, red):
+def split_mesh(xy, faces, red, sides=None):
     """The triangles ``red`` ((m,) bool) split in four at their sides' midpoints, and in
     two those of their neighbours that share one split side (three-way splits would need
-    more, so a neighbour with two split sides is split in four too).
+    more, so a neighbour with two split sides is split in four too). ``sides``: the
+    triangles' sides and edges (:func:`pipeline.geometry.face_sides`) where known.
 
     Returns (xy (n2, 2), faces (m2, 3), parent: (m2,) the input triangle of each, sides:
     (n2 - n, 2) the two ends of the side each new vertex halves, in the order of
@@ -145,7 +147,7 @@ def split_mesh(xy, faces, red):
     red = np.asarray(red, bool).copy()
     if not red.any():
         return xy, faces, np.arange(len(faces)), np.zeros((0, 2), np.int64)
-    fe, edges = face_sides(faces)
+    fe, edges = face_sides(faces) if sides is None else sides
     while True:
         marked = np.zeros(len(edges), bool)
         marked[fe[red].ravel()] = True
