@@ -51,19 +51,56 @@ def retract_ends(chains, pw, reach=REACH, longest=LONGEST):
     through = np.bincount(end[ask], ~crowded[ask], 2 * len(chains)) == 0
     ask = np.flatnonzero((to_end > pw) & (to_end <= longest * pw) & through[end])
     crowded[ask] = _crowded(ask, samples, label, tree, to_end, length, pw, reach)
+    kept = _kept_spans(crowded, bounds, closed)
     P = np.concatenate(paths)
     at, pb = _arc(P, np.repeat(np.arange(len(paths)), [len(p) for p in paths]))
-    for c in np.flatnonzero(~closed).tolist():
-        lo, hi = bounds[c], bounds[c + 1]
-        if not (crowded[lo] or crowded[hi - 1]):
-            continue
-        cr = crowded[lo:hi]
-        a = lo + int(np.argmax(~cr)) if cr[0] else lo
-        b = hi - 1 - int(np.argmax(~cr[::-1])) if cr[-1] else hi - 1
-        chains[c] = None if b <= a or cr.all() else _cut(
-            P[pb[c]:pb[c + 1]], at[pb[c]:pb[c + 1]], chains[c][1], arc[a], arc[b],
-            samples[a], samples[b])
+    for c, piece in zip(kept[0].tolist(), _cut_spans(P, at, pb, chains, *kept, arc, samples)):
+        chains[c] = piece
     return [c for c in chains if c is not None]
+
+
+def _kept_spans(crowded, bounds, closed):
+    """For the open paths with a crowded end (``crowded`` (q,) per sample, the samples of
+    path ``c`` from ``bounds[c]`` to ``bounds[c + 1]``), the samples their cut-back part
+    runs between: their first and last uncrowded one, or -1 where none is left. Returns
+    ((r,) path, (r,) first sample, (r,) last sample), all paths at once."""
+    lo, hi = bounds[:-1], bounds[1:]
+    c = np.flatnonzero(~closed & (crowded[lo] | crowded[hi - 1]))
+    lo, hi = lo[c], hi[c]
+    free = np.flatnonzero(~crowded)
+    i = np.searchsorted(free, lo)
+    a = free[np.minimum(i, len(free) - 1)] if len(free) else np.zeros(len(c), np.int64)
+    j = np.searchsorted(free, hi) - 1
+    b = free[np.maximum(j, 0)] if len(free) else np.zeros(len(c), np.int64)
+    none = (i >= len(free)) | (a >= hi) | (j < 0) | (b < lo) | (b <= a)
+    return c, np.where(none, -1, a), np.where(none, -1, b)
+
+
+def _cut_spans(P, at, pb, chains, which, a, b, arc, samples):
+    """:func:`_cut` of each path ``which`` ((r,), points ``P[pb[c]:pb[c + 1]]`` at arc
+    lengths ``at``) from sample ``a`` to sample ``b`` (``arc`` along the path, points
+    ``samples``), None where ``a`` is -1: the point counts below each end, which
+    :func:`_cut` searches for path by path, counted for all at once. Returns a list."""
+    size = np.diff(pb)
+    start = np.full(len(size), -np.inf)
+    stop = np.full(len(size), -np.inf)
+    ok = a >= 0
+    start[which[ok]], stop[which[ok]] = arc[a[ok]], arc[b[ok]]
+    owner = np.repeat(np.arange(len(size)), size)
+    upto = np.bincount(owner, at <= np.repeat(start, size), len(size)).astype(np.int64)
+    below = np.bincount(owner, at < np.repeat(stop, size), len(size)).astype(np.int64)
+    lo = np.maximum(upto, 1)
+    hi = np.maximum(np.minimum(below, size - 1), lo - 1)
+    out = []
+    for c, s, t, x, y in zip(which.tolist(), a.tolist(), b.tolist(), lo[which].tolist(),
+                             hi[which].tolist()):
+        if s < 0:
+            out.append(None)
+            continue
+        first = pb[c]
+        out.append((np.concatenate([samples[s:s + 1], P[first + x:first + y], samples[t:t + 1]]),
+                    chains[c][1][x - 1:max(y, x)], False))
+    return out
 
 
 def _crowded(ask, samples, label, tree, to_end, length, pw, reach):
