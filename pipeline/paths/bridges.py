@@ -15,7 +15,7 @@ import numpy as np
 from pipeline.geometry import polyline_arc
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
-from pipeline.paths.samples import nearest_other, sample_tree
+from pipeline.paths.samples import nearest_other, neighbours, sample_tree
 
 # A bridge is laid where the two paths lie this far apart (in path widths) at both
 # rungs, a path width apart along the ring; along its neighbour (round a small ring, the
@@ -102,14 +102,17 @@ def _beside(samples, label, tree, i, i2, pw):
     and ``j2`` on one path (-1 where ``i2`` has none on it), and their distances."""
     at = np.r_[i, i2]
     reach = SPACING[1] * pw
-    near, d_near = nearest_other(samples, label, tree, at, reach)
+    # The second path is looked for among the same first neighbours: asked once.
+    asked = neighbours(samples, tree, at, reach, 16)
+    near, d_near = nearest_other(samples, label, tree, at, reach, known=asked)
     crowded = d_near < SPACING[0] * pw
     near[crowded] = -1
     # Only probes with a path beside them can have a second one.
     ask = np.flatnonzero(near >= 0)
     nxt, d_nxt = np.full(len(at), -1), np.full(len(at), np.inf)
     nxt[ask], d_nxt[ask] = nearest_other(samples, label, tree, at[ask], reach,
-                                         skip=label[near[ask]])
+                                         skip=label[near[ask]],
+                                         known=(asked[0][ask], asked[1][ask]))
     nxt[d_nxt < SPACING[0] * pw] = -1
     n = len(i)
     j, dj = np.r_[near[:n], nxt[:n]], np.r_[d_near[:n], d_nxt[:n]]

@@ -37,20 +37,21 @@ def _densify(points, step):
     return np.vstack([points[seg] + d[seg] * t[:, None], points[-1:]])
 
 
-def nearest_other(samples, label, tree, at, reach, k=16, skip=None):
+def nearest_other(samples, label, tree, at, reach, k=16, skip=None, known=None):
     """For samples ``at`` ((a,) int), the nearest sample of another path (``label`` (q,)
     the path of each of ``samples``, ``tree`` their KD-tree) within ``reach`` mm, -1
     where none, and its distance (mm, inf where none): (a,), (a,). With ``skip`` ((a,)
     int) that path is passed over too. ``k`` neighbours are asked first; where a path's
     own points crowd (corners closer than the sampling) and fill them all, four times as
-    many are asked again."""
+    many are asked again. ``known``: those ``k`` of each (:func:`neighbours`) where
+    already asked."""
     j = np.full(len(at), -1, np.int64)
     near = np.full(len(at), np.inf)
     ask = np.arange(len(at))
     while len(ask):
         k = min(k, len(samples))
-        d, n = tree.query(samples[at[ask]], k=k, distance_upper_bound=reach)
-        d, n = d.reshape(len(ask), k), n.reshape(len(ask), k)
+        d, n = known if known is not None else neighbours(samples, tree, at[ask], reach, k)
+        known = None
         n = np.minimum(n, len(label) - 1)
         other = (label[n] != label[at[ask]][:, None]) & np.isfinite(d)
         if skip is not None:
@@ -64,3 +65,11 @@ def nearest_other(samples, label, tree, at, reach, k=16, skip=None):
             break
         ask, k = ask[~has & np.isfinite(d[:, -1])], 4 * k
     return j, near
+
+
+def neighbours(samples, tree, at, reach, k):
+    """The ``min(k, q)`` samples nearest each of samples ``at`` ((a,) int) within ``reach``
+    mm, nearest first, and their distances (index q, inf past the last): (a, k), (a, k)."""
+    k = min(k, len(samples))
+    d, n = tree.query(samples[at], k=k, distance_upper_bound=reach)
+    return d.reshape(len(at), k), n.reshape(len(at), k)
