@@ -279,16 +279,22 @@ def plan_stripes(xy, faces, direction, sigma, width_mm, refine=True, sheet=None)
     np.maximum.at(pathless, parent, bare)
     bare_mm2 = float(np.abs(signed_areas_2d(xy, sub[bare > 0])).sum())
     pts, keys, face = stripe_segments(xy, sub, u, bare == 0)
-    seg_sigma = np.asarray(sigma, dtype=float)[parent[face]]
-    chains, seg_faces = [], []
-    for steps, closed in chain(keys):
-        e = np.asarray(steps)
-        seg, entry = e // 2, e % 2
-        # Each segment's entry point, then where the last one is left.
-        p = pts[np.append(seg, seg[-1]), np.append(entry, 1 - entry[-1])]
-        chains.append((p[:-1] if closed else p, seg_sigma[seg], closed))
-        seg_faces.append(parent[face[seg]])
-    return Stripes(chains, pathless, bare_mm2, seg_faces)
+    walks = chain(keys)
+    if not walks:
+        return Stripes([], pathless, bare_mm2, [])
+    e = np.concatenate([steps for steps, _ in walks])
+    size = np.array([len(steps) for steps, _ in walks])
+    seg, entry = e // 2, e % 2
+    # Each segment's entry point, then where the last one is left: all walks' points
+    # gathered at once, then cut apart (a gather per walk took 0.05 s a set).
+    last = np.cumsum(size) - 1
+    p = pts[np.insert(seg, last + 1, seg[last]), np.insert(entry, last + 1, 1 - entry[last])]
+    p = np.split(p, np.cumsum(size + 1)[:-1])
+    cut = np.cumsum(size)[:-1]
+    seg_sigma = np.split(np.asarray(sigma, dtype=float)[parent[face[seg]]], cut)
+    chains = [(q[:-1] if closed else q, sg, closed)
+              for q, sg, (_, closed) in zip(p, seg_sigma, walks)]
+    return Stripes(chains, pathless, bare_mm2, np.split(parent[face[seg]], cut))
 
 
 
