@@ -32,6 +32,13 @@ class Sheet:
         return self._sides[1]
 
     @cached_property
+    def boundary(self):
+        """(k,) int: the outer boundary's vertices in order
+        (:func:`pipeline.paths.isoline.boundary_loop`)."""
+        from pipeline.paths.isoline import boundary_loop
+        return boundary_loop(self.faces)
+
+    @cached_property
     def face_area(self):
         """(m,) mm2."""
         return np.abs(signed_areas_2d(self.xy, self.faces))

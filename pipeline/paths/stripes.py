@@ -330,13 +330,14 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     paths turn away from the isolines (``isoline_angle_deg``, as the isoline method's
     report does). ``sheet``: as :func:`plan_stripes`'."""
     import shapely
-    from pipeline.paths.isoline import _order_traces, _outline_polygon, boundary_loop, finished
+    from pipeline.paths.isoline import _order_traces, _outline_polygon, finished
     from pipeline.paths.bridges import bridge_rings
     from pipeline.paths.ends import retract_ends
     from pipeline.paths.rims import join_at_rim, leave_slivers, printed_samples
     from pipeline.paths.links import join_ends, merge_joined, path_samples
     from pipeline.paths.stats import _weighted_percentiles
     xy = np.asarray(xy, dtype=float)
+    sheet = Sheet(xy, faces) if sheet is None else sheet
     drawn = plan_stripes(xy, faces, direction, sigma, width_mm, refine, sheet)
     # Each segment's triangle rides along with its shrink, through the ends cut back.
     chains = [(p, np.column_stack([sg, f]), closed)
@@ -350,7 +351,7 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     face = np.concatenate([t[:, 1] for _, t, _ in chains]).astype(np.int64)
     chains = [(p, t[:, 0], closed) for p, t, closed in chains]
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
-    outline = _outline_polygon(xy, boundary_loop(faces))
+    outline = _outline_polygon(xy, sheet.boundary)
     footprint = outline.buffer(0.25 * width_mm)
     shapely.prepare(footprint)
     samples, label, tree = path_samples([p for p, _ in raw], width_mm)
