@@ -57,18 +57,24 @@ def end_distances(samples, label):
     samples: the last answer is kept while those samples live (a stripe set of the
     175 mm dome worked it out three times, 17 ms each)."""
     from pipeline.paths.ends import _arc
-    last = _LAST_END_DISTANCES
-    if last and last[0]() is samples and last[1]() is label:
+    # One read and one write of the slot: a plan in another thread at worst misses.
+    last = _LAST_END_DISTANCES[0]
+    if last is not None and last[0]() is samples and last[1]() is label:
         return last[2]
     arc, bounds = _arc(samples, label)
     out = np.stack([arc, arc[bounds[1:] - 1][label] - arc], axis=1)
     out.flags.writeable = False
-    last[:] = [weakref.ref(samples, lambda _: last.clear()), weakref.ref(label), out]
+    _LAST_END_DISTANCES[0] = (weakref.ref(samples, _forget_end_distances), weakref.ref(label),
+                              out)
     return out
 
 
-# [samples, label (weak references), their end_distances] of the last call.
-_LAST_END_DISTANCES = []
+# (samples, label (weak references), their end_distances) of the last call.
+_LAST_END_DISTANCES = [None]
+
+
+def _forget_end_distances(_):
+    _LAST_END_DISTANCES[0] = None
 
 
 def over_others(a, b, end_a, end_b, samples, label, tree, pw, limit=np.inf, from_end=None):
