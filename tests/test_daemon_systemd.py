@@ -58,9 +58,11 @@ def test_systemd_analyze_verify(tmp_path, name):
 
 
 def test_plan_time_limit_stops_the_process(tmp_path):
-    src = tmp_path / "x.npy"
-    src.write_bytes(b"\x93NUMPY")
-    proc = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "out", time_limit_s=0.05,
+    """A plan of a few seconds under a limit of a fraction of one (a plan forked by the
+    planning server starts at once: a bad file would fail before any limit)."""
+    from daemon_helpers import write_dome
+    src = write_dome(tmp_path / "dome.npy", diameter_mm=60, height_mm=10)
+    proc = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "out", time_limit_s=0.3,
                        memory_mb=4096)
     import time
     while (result := proc.poll()) is None:
