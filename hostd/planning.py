@@ -13,6 +13,7 @@ runs out of memory or runs away fails its own job only. The child writes
 import errno
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -103,6 +104,7 @@ class _Server:
 
     def __init__(self):
         self.proc = None
+        self.ready = False            # the server has its libraries loaded
         self.exits = {}               # pid -> exit code, from the server's reports
         self.replies = []
         self.cond = threading.Condition()
@@ -110,9 +112,20 @@ class _Server:
     def alive(self):
         return self.proc is not None and self.proc.poll() is None
 
-    def start(self, args):
+    def warm_up(self):
+        """Start the server where none runs, without waiting for it."""
         with self.cond:
-            if not self.alive() and not self._launch():
+            if not self.alive():
+                self._launch()
+
+    def start(self, args):
+        # Loading the libraries takes the server a second or more (several on a small
+        # host): a plan asked for meanwhile runs on its own rather than hold up the
+        # daemon's loop until the server is ready.
+        with self.cond:
+            if not self.alive():
+                self._launch()
+            if not self.ready:
                 return None
             stderr = tempfile.NamedTemporaryFile(prefix="hostd-plan-", suffix=".stderr",
                                                  delete=False)
@@ -126,8 +139,8 @@ class _Server:
             except OSError:
                 os.unlink(stderr.name)
                 return None
-            # The server answers as soon as it forked; it loaded its libraries first.
-            if not self.cond.wait_for(lambda: self.replies or not self.alive(), timeout=120):
+            # The server answers as soon as it forked.
+            if not self.cond.wait_for(lambda: self.replies or not self.alive(), timeout=10):
                 self.proc.kill()
             if not self.replies:
                 os.unlink(stderr.name)
@@ -143,7 +156,7 @@ class _Server:
         except OSError:
             self.proc = None
             return False
-        self.replies = []
+        self.replies, self.ready = [], False
         threading.Thread(target=self._read, args=(self.proc,), daemon=True,
                          name="planserver").start()
         return True
@@ -157,8 +170,10 @@ class _Server:
             with self.cond:
                 if "exit" in msg:
                     self.exits[msg["exit"]] = msg["code"]
-                else:
+                elif "pid" in msg:
                     self.replies.append(msg["pid"])
+                elif msg.get("ready") and proc is self.proc:
+                    self.ready = True
                 self.cond.notify_all()
         with self.cond:
             self.cond.notify_all()
@@ -201,7 +216,7 @@ class _Forked:
     def kill(self):
         if self.returncode is None:
             try:
-                os.kill(self.pid, 9)
+                os.kill(self.pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
 
@@ -217,6 +232,14 @@ class _Forked:
 
 _SERVER = None
 _SERVER_LOCK = threading.Lock()
+
+
+def warm_up():
+    """Start the planning server (Linux) in the background, so that plans to come find
+    it ready: the daemon calls this from its loop's thread, with whose end the server
+    ends."""
+    if sys.platform.startswith("linux"):
+        _server().warm_up()
 
 
 def _server():

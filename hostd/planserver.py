@@ -1,17 +1,18 @@
 """A planning server: one process with the pipeline loaded that forks each plan.
 
 A plan started as ``python -m hostd.planning`` first imports numpy, scipy, shapely and
-the pipeline: 0.9-1.2 s of CPU on a server core, several seconds on a Raspberry-Pi-class
-host, for every plan. The server imports them once and forks a child per plan, which
+the pipeline: 0.9-1.2 s of CPU on a server core, more on a slower host, for every plan. The server imports them once and forks a child per plan, which
 runs :func:`hostd.planning.child_main` as that command would (its own session, its
 limits, killed with its parent); its stderr goes to a file the daemon reads.
 
-The daemon talks to the server over its stdin and stdout, a JSON object per line:
-``{"args": ..., "stderr": path, "env": {...}}`` starts a plan (in that environment; what
-the libraries read as they load, such as the BLAS threads, is the server's) and is answered ``{"pid": n}``; every
-plan that ends is reported ``{"exit": pid, "code": c}`` (``c`` < 0: killed by signal
-``-c``). The server dies with the daemon thread that started it (Linux), and ends at
-the end of its stdin; either way its plans die with it.
+The daemon talks to the server over its stdin and stdout, a JSON object per line. The
+server says ``{"ready": true}`` once its libraries are loaded (plans asked for before
+then run on their own). ``{"args": ..., "stderr": path, "env": {...}}`` starts a plan in
+that environment (what the libraries read as they load, such as the BLAS threads, is the
+server's) and is answered ``{"pid": n}``; every plan that ends is reported
+``{"exit": pid, "code": c}`` (``c`` < 0: killed by signal ``-c``). The server dies with
+the daemon thread that started it (Linux), and ends at the end of its stdin; either way
+its plans die with it.
 """
 
 import json
@@ -31,6 +32,7 @@ def main(argv):
     os.dup2(null, 1)
     os.close(null)
     _preload()
+    _send(out, {"ready": True})
     wake_r, wake_w = os.pipe()
     os.set_blocking(wake_w, False)
     signal.set_wakeup_fd(wake_w)
@@ -98,8 +100,7 @@ def _fork_plan(request, server_fds):
     try:
         os.setsid()
         signal.set_wakeup_fd(-1)
-        for sig in (signal.SIGCHLD, signal.SIGINT):
-            signal.signal(sig, signal.SIG_DFL)
+        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
         signal.signal(signal.SIGINT, signal.default_int_handler)
         for fd in server_fds:
             os.close(fd)

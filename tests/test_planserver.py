@@ -19,6 +19,17 @@ def _parent(pid):
         return int(f.read().rsplit(")", 1)[1].split()[1])
 
 
+def _ready_server(timeout=60):
+    """The planning server, started and with its libraries loaded: its pid."""
+    planning.warm_up()
+    server = planning._server()
+    deadline = time.monotonic() + timeout
+    while not (server.ready and server.alive()):
+        assert time.monotonic() < deadline, "the planning server did not get ready"
+        time.sleep(0.02)
+    return server.proc.pid
+
+
 def _done(proc, timeout=120):
     deadline = time.monotonic() + timeout
     while (result := proc.poll()) is None:
@@ -30,6 +41,7 @@ def _done(proc, timeout=120):
 def test_plans_are_forked_by_one_server_that_has_the_pipeline_loaded(tmp_path):
     from daemon_helpers import write_dome
     src = write_dome(tmp_path / "dome.npy", diameter_mm=15, height_mm=3)
+    _ready_server()
     first = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "a", 120, 4096)
     server = _parent(first.pid)
     assert server != os.getpid()
@@ -44,12 +56,14 @@ def test_plans_are_forked_by_one_server_that_has_the_pipeline_loaded(tmp_path):
 def test_a_plan_whose_server_died_fails_and_the_next_plan_gets_a_new_server(tmp_path):
     from daemon_helpers import write_dome
     src = write_dome(tmp_path / "dome.npy", diameter_mm=120, height_mm=20)   # ~10 s
+    _ready_server()
     running = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "a", 120, 4096)
     server = _parent(running.pid)
     os.kill(server, signal.SIGKILL)
     result = _done(running, timeout=20)
     assert result["code"] == "plan.crashed" and "signal 9" in result["text"], result
     small = write_dome(tmp_path / "small.npy", diameter_mm=15, height_mm=3)
+    _ready_server()
     after = PlanProcess("j2", small, "generic-0.5mm", tmp_path / "b", 120, 4096)
     assert _parent(after.pid) not in (server, os.getpid())
     assert _done(after) == {"ok": True}
@@ -99,10 +113,28 @@ def test_a_plan_runs_in_the_daemons_environment_of_now_not_the_servers(tmp_path,
     from pathlib import Path
     from daemon_helpers import write_dome
     src = write_dome(tmp_path / "dome.npy", diameter_mm=15, height_mm=3)
-    assert _done(PlanProcess("j1", src, "generic-0.5mm", tmp_path / "a", 120, 4096))["ok"]
+    server = _ready_server()
+    first = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "a", 120, 4096)
+    assert _parent(first.pid) == server and _done(first)["ok"]
     generic = Path(__file__).resolve().parents[1] / "profiles" / "generic-0.5mm.yaml"
     (tmp_path / "profiles").mkdir()
     (tmp_path / "profiles" / "mine-0.5mm.yaml").write_text(
         generic.read_text().replace("name: generic-0.5mm", "name: mine-0.5mm"))
     monkeypatch.setenv("HOSTD_PROFILES", str(tmp_path / "profiles"))
-    assert _done(PlanProcess("j2", src, "mine-0.5mm", tmp_path / "b", 120, 4096)) == {"ok": True}
+    second = PlanProcess("j2", src, "mine-0.5mm", tmp_path / "b", 120, 4096)
+    assert _parent(second.pid) == server and _done(second) == {"ok": True}
+
+
+def test_a_plan_asked_for_while_the_server_loads_runs_on_its_own_at_once(tmp_path,
+                                                                        monkeypatch):
+    """The daemon's loop never waits for the server to load its libraries."""
+    from daemon_helpers import write_dome
+    monkeypatch.setattr(planning, "_SERVER", None)
+    src = write_dome(tmp_path / "dome.npy", diameter_mm=15, height_mm=3)
+    proc = PlanProcess("j1", src, "generic-0.5mm", tmp_path / "a", 120, 4096)
+    assert proc.proc.args[1:3] == ["-m", "hostd.planning"]
+    assert planning._server().alive() and not planning._server().ready
+    assert _done(proc) == {"ok": True}
+    _ready_server()
+    later = PlanProcess("j2", src, "generic-0.5mm", tmp_path / "b", 120, 4096)
+    assert _parent(later.pid) == planning._server().proc.pid and _done(later) == {"ok": True}
