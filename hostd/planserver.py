@@ -1,9 +1,10 @@
 """A planning server: one process with the pipeline loaded that forks each plan.
 
 A plan started as ``python -m hostd.planning`` first imports numpy, scipy, shapely and
-the pipeline: 0.9-1.2 s of CPU on a server core, more on a slower host, for every plan. The server imports them once and forks a child per plan, which
-runs :func:`hostd.planning.child_main` as that command would (its own session, its
-limits, killed with its parent); its stderr goes to a file the daemon reads.
+the pipeline: 0.9-1.2 s of CPU on a server core, more on a slower host, for every plan.
+The server imports them once and forks a child per plan, which runs
+:func:`hostd.planning.child_main` as that command would (its own session, its limits,
+killed with its parent); its stderr goes to a file the daemon reads.
 
 The daemon talks to the server over its stdin and stdout, a JSON object per line. The
 server says ``{"ready": true}`` once its libraries are loaded (plans asked for before

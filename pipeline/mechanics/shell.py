@@ -117,7 +117,8 @@ class ShellSystem:
         base = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
         self.C = np.einsum("kc,fcd->fkd", base, self.Dm_inv)
         # The nonzero entries of Dm_inv (its [1, 0] is 0): F = [x1 - x0, x2 - x0] Dm_inv.
-        self._inv = [np.ascontiguousarray(self.Dm_inv[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1))]
+        self._inv = [np.ascontiguousarray(self.Dm_inv[:, i, j])
+                     for i, j in ((0, 0), (0, 1), (1, 1))]
         self.hinges = top.hinges
         self._corners = [np.ascontiguousarray(c) for c in self.faces.T]
         self._hinge_cols = [np.ascontiguousarray(c) for c in top.hinges.T]
@@ -127,6 +128,11 @@ class ShellSystem:
         to = np.concatenate([self.faces.T.ravel(), top.hinges.T.ravel()])
         self._scatter = sp.csr_matrix((np.ones(len(to)), (to, np.arange(len(to)))),
                                       shape=(n, len(to)))
+        # The terms themselves, written by the energies into one buffer kept between calls
+        # (a fresh one page-faults): this makes :meth:`project` not reentrant.
+        self._terms = np.empty((3, len(to)))
+        self._membrane_terms = self._terms[:, :3 * m]
+        self._bending_terms = self._terms[:, 3 * m:]
         hf = top.hinge_faces
         area = np.maximum(self.rest_area, _MIN_AREA_FRACTION * float(np.median(self.rest_area)))
         self._e_len = e_len = self._hinge_rest_length(rest_len)
@@ -210,20 +216,11 @@ class ShellSystem:
 
     def project(self, X):
         """Energy and gradient at ``X`` ((3, n) mm): (gradient (3, n), energy)."""
-        W, m3 = self._contributions(), 3 * len(self.faces)
-        e = self._membrane(X, W[:, :m3]) + self._bending(X, W[:, m3:])
+        e = self._membrane(X, self._membrane_terms) + self._bending(X, self._bending_terms)
         g = np.empty_like(X)
         for i in range(3):
-            g[i] = self._scatter @ W[i]
+            g[i] = self._scatter @ self._terms[i]
         return g, e
-
-    def _contributions(self):
-        """The (3, 3m + 4h) buffer the energies write their gradient terms to, kept
-        between calls (a fresh one page-faults): this makes :meth:`project` not
-        reentrant."""
-        if getattr(self, "_W", None) is None:
-            self._W = np.empty((3, self._scatter.shape[1]))
-        return self._W
 
     def gradient(self, g, X):
         """The gradient :meth:`project` computed at ``X``."""
@@ -235,8 +232,8 @@ class ShellSystem:
 
     def energy_terms(self, X):
         """Membrane and bending energy at ``X`` ((3, n)): dict, N mm with E = 1 N/mm^2."""
-        W, m3 = self._contributions(), 3 * len(self.faces)
-        return {"membrane": self._membrane(X, W[:, :m3]), "bending": self._bending(X, W[:, m3:])}
+        return {"membrane": self._membrane(X, self._membrane_terms),
+                "bending": self._bending(X, self._bending_terms)}
 
     def _membrane(self, X, out):
         """Membrane and barrier energy at ``X`` ((3, n) mm); writes each corner's
