@@ -28,7 +28,6 @@ import time
 from pathlib import Path
 
 from hostd import jobs as J
-from hostd import planning
 from hostd import runtime
 from hostd.control import Control
 from hostd.endings import Endings
@@ -144,7 +143,6 @@ class Daemon:
     def run(self):
         """Set up, loop until asked to stop, shut down; returns the exit status."""
         self.setup()
-        planning.warm_up()   # its libraries load while the loop starts, not with a plan
         runtime.publish(self.config, Path.cwd())   # terminal commands find it from anywhere
         try:
             while not self.stop_event.is_set():

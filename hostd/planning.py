@@ -236,8 +236,8 @@ _SERVER_LOCK = threading.Lock()
 
 def warm_up():
     """Start the planning server (Linux) in the background, so that plans to come find
-    it ready: the daemon calls this from its loop's thread, with whose end the server
-    ends."""
+    it ready; it ends with the thread that calls this. The daemon leaves it to its first
+    plan (which runs on its own meanwhile): a daemon that plans nothing keeps no server."""
     if sys.platform.startswith("linux"):
         _server().warm_up()
 
