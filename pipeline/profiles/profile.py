@@ -120,7 +120,10 @@ class MeshParams:
     min_prominence_mm: float = _num(2.0, strict=False)
     smooth_mm: float = _num(1.0, strict=False)
     l_sim_mm: float = _num(2.0, strict=False)
-    grid_mm: float = _num(1.0)
+    # The free method's mesh. At 1.25 mm the sheet ends as close to the file as at 1 mm and
+    # forms the same relief at 2-8 mm (the benchmark's models), and a 175 mm plan costs
+    # 40 % less time.
+    grid_mm: float = _num(1.25)
 
 
 @dataclass(frozen=True)
