@@ -54,14 +54,15 @@ class Recovery:
             if slot.name == job["printer"] and slot.held is None:
                 self.printing.hold(slot, "the print of %s was interrupted when hostd stopped"
                                    % job["name"])
-        log.warning("job %s: %s was printing when hostd stopped (last confirmed line %d); "
-                    "interrupted, the file is in failed/", job["id"], job["rel_path"],
-                    job["last_line"])
         self.endings.to_failed(job, "The print of %s was interrupted: the daemon stopped or "
                                     "crashed while printing (last confirmed line %d). The "
                                     "printer is held: clear the bed, resume the printer, "
                                     "then print it again with `hostd requeue %s`."
                                % (job["name"], job["last_line"], job["id"]))
+        # Said once it is true: a person (or a script) reading it looks in failed/ at once.
+        log.warning("job %s: %s was printing when hostd stopped (last confirmed line %d); "
+                    "interrupted, the file is in failed/", job["id"], job["rel_path"],
+                    job["last_line"])
 
     def hold_after_damage(self, damaged, verdict):
         """A new job database replaced a damaged one: the claimed files are jobs again
