@@ -87,6 +87,17 @@ def test_a_mesh_not_much_finer_than_the_coarse_sheet_is_tried_on_itself(monkeypa
     assert {n for n, _ in calls} == {len(mesh.vertices)}
 
 
+def test_a_large_sheet_tries_on_coarser_triangles_than_a_small_one():
+    """The trials' triangles are 2.5 mm on a 60 mm model and 3 mm from about 150 mm of
+    longest diameter on (where 3 mm rests as 2.5 mm does), and never coarser."""
+    def square(side_mm):
+        n = int(side_mm / 0.5) + 1
+        return build_grid_mesh(HeightField(np.zeros((n, n)), 0.5), 5.0)
+    assert staged.coarse_spacing_mm(square(42.0)) == staged.COARSE_MM == 2.5
+    assert staged.coarse_spacing_mm(square(125.0)) == pytest.approx(3.0, abs=0.05)
+    assert staged.coarse_spacing_mm(square(400.0)) == staged.COARSE_MAX_MM == 3.0
+
+
 def test_the_coarse_sheet_carries_the_layout_map():
     """A layout that is a rotation of the target's footprint carries to the coarse
     vertices as that rotation; each coarse triangle takes the fine one's direction."""

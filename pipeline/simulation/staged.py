@@ -30,6 +30,12 @@ from pipeline.simulation.resample import locate
 # 175 mm tiles and the rough terrain, but a 40 mm dome's trials then rested 21 % further
 # from its target than its plan's mesh did (0.436 against 0.360 mm; 6 % at 2.5 mm).
 COARSE_MM = 2.5
+# So a large sheet's trials settle on triangles up to COARSE_MAX_MM, as long as its longest
+# diameter holds COARSE_ACROSS of them (from about 125 mm on; 3 mm from 150 mm): 3 mm rests
+# as 2.5 mm does on the 150-175 mm models (each within 8 % of its full settle), and a 60
+# mm dome, whose trials at 3 mm rest 8 % off (3 % at 2.5 mm), keeps 2.5 mm.
+COARSE_MAX_MM = 3.0
+COARSE_ACROSS = 50
 # The full mesh starts from the coarse sheet's rest, which has crept along the soft modes
 # already: it only relaxes what the coarse triangles could not bend, and is taken to be at
 # rest when it moves this much less than a sheet settling from the bath must (times its
@@ -51,12 +57,13 @@ WARM_RELAY = False
 FINER = 1.8
 
 
-def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=COARSE_MM,
+def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm="auto",
                   reference=False, relief=None):
     """As :func:`pipeline.simulation.programmed.simulate_free`, the program chosen on a
-    sheet of ``coarse_mm`` triangles (:func:`coarse_sheet`) and only it made on ``mesh``
-    and settled there once, from the coarse sheet's rest carried onto it. Where ``mesh``
-    is not :data:`FINER` times finer (or ``coarse_mm`` is None) the trials run on it.
+    sheet of ``coarse_mm`` triangles (:func:`coarse_sheet`; "auto": :func:`coarse_spacing_mm`)
+    and only it made on ``mesh`` and settled there once, from the coarse sheet's rest
+    carried onto it. Where ``mesh`` is not :data:`FINER` times finer (or ``coarse_mm`` is
+    None) the trials run on it.
     With ``reference`` the program chosen settles on ``mesh`` from the bath instead
     (:func:`reference_settle`), for comparison. ``relief``: as
     :func:`pipeline.simulation.programmed.simulate_free`'s.
@@ -67,6 +74,8 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm=CO
     ``coarse_cpu`` and ``full_cpu``)."""
     t0, c0 = time.perf_counter(), time.process_time()
     coarse = None
+    if coarse_mm == "auto":
+        coarse_mm = coarse_spacing_mm(mesh)
     if coarse_mm is not None and coarse_mm >= FINER * spacing_mm(mesh):
         try:
             coarse = coarse_sheet(hf, mesh, flat, coarse_mm)
@@ -136,6 +145,15 @@ def _across_report(coarse_across, prog, coarse_mm):
     if relaid is not None:
         out["relaid"] = dict(relaid, chosen=coarse_across["chosen"] == 0)
     return out
+
+
+def coarse_spacing_mm(mesh):
+    """The trials' triangle size for ``mesh`` (mm): :data:`COARSE_MM`, or coarser up to
+    :data:`COARSE_MAX_MM` where the target's longest diameter (x, y) holds
+    :data:`COARSE_ACROSS` triangles of it."""
+    V = np.asarray(mesh.vertices, dtype=float)[:, :2]
+    diameter = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    return float(np.clip(diameter / COARSE_ACROSS, COARSE_MM, COARSE_MAX_MM))
 
 
 def spacing_mm(mesh):
