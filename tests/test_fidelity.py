@@ -119,7 +119,8 @@ def test_the_default_grid_forms_the_relief_a_1_mm_grid_forms(tmp_path):
     """The free method's default mesh (``mesh.grid_mm``) is coarser than 1 mm to save time,
     not detail: on the shipped terrain example (48 mm, where a coarse grid tells most) the
     sheet keeps every octave of the file within 0.03 of the gain it keeps on a 1 mm grid,
-    and ends no further from it. A 1.6 mm grid loses 0.05 of the 4-8 mm octave."""
+    and ends no more than 5 % further from it. A 1.6 mm grid loses 0.05 of the 4-8 mm
+    octave."""
     import dataclasses
     import shutil
     from pathlib import Path
