@@ -26,10 +26,7 @@ def stripe_matrix(sheet, X, width_mm):
     ``sheet`` (:class:`pipeline.paths.sheet.Sheet`): the sparse (2n, 2n) matrix over the
     real and imaginary parts of the vertex values, and its diagonal per vertex ((n,))."""
     i, j = sheet.edges.T
-    Xi, Xj = X[i], X[j]
-    s = np.where(np.einsum("ec,ec->e", Xi, Xj) < 0, -1.0, 1.0)
-    omega = 2 * np.pi / width_mm * np.einsum("ec,ec->e", sheet.edge_vectors,
-                                             0.5 * (Xi + s[:, None] * Xj))
+    s, omega = edge_steps(sheet.edge_vectors, X[i], X[j], width_mm)
     w = sheet.weights
     c, sn = w * np.cos(omega), w * np.sin(omega)
     # Transport of vertex i's value to j: rotation by omega, then conjugation if the
@@ -37,6 +34,16 @@ def stripe_matrix(sheet, X, width_mm):
     block = -np.stack([c, -sn, s * sn, s * c])
     diag = sheet.weight_sums
     return sheet.matrix(block, diag), diag
+
+
+def edge_steps(d, Xa, Xb, width_mm):
+    """Along edges ``d`` ((e, 2) mm, from end a to end b) with the line field ``Xa``,
+    ``Xb`` ((e, 2) unit) at their ends: the sign that turns ``Xb`` to agree with ``Xa``
+    ((e,) +-1) and the phase a stripe pattern ``width_mm`` apart advances by along
+    each edge ((e,) rad)."""
+    s = np.where(np.einsum("ec,ec->e", Xa, Xb) < 0, -1.0, 1.0)
+    omega = 2 * np.pi / width_mm * np.einsum("ec,ec->e", d, 0.5 * (Xa + s[:, None] * Xb))
+    return s, omega
 
 
 def corner_phases(xy, faces, phase, X, width_mm):

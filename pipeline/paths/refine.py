@@ -14,7 +14,8 @@ patch shrinks to a sixteenth.
 
 import numpy as np
 
-from pipeline.paths.phase import _wrap, corner_phases, stripe_matrix, vertex_line_field
+from pipeline.paths.phase import (_wrap, corner_phases, edge_steps, stripe_matrix,
+                                  vertex_line_field)
 from pipeline.paths.sheet import split_mesh
 
 # Jacobi sweeps of the stripe energy on the split triangles: on the real tiles 10 gave
@@ -43,9 +44,7 @@ def carry(xy, phase, X, sides, width_mm):
     """``phase`` and ``X`` ((n,), (n, 2)) with values appended for the midpoints of
     ``sides`` ((k, 2) vertex ids, :func:`pipeline.paths.sheet.split_mesh`): ((n + k,), (n + k, 2))."""
     a, b = sides[:, 0], sides[:, 1]
-    s = np.where(np.einsum("ec,ec->e", X[a], X[b]) < 0, -1.0, 1.0)
-    om = 2 * np.pi / width_mm * np.einsum("ec,ec->e", xy[b] - xy[a],
-                                          0.5 * (X[a] + s[:, None] * X[b]))
+    s, om = edge_steps(xy[b] - xy[a], X[a], X[b], width_mm)
     step = om + _wrap(s * phase[b] - phase[a] - om)
     Xm = X[a] + s[:, None] * X[b]
     Xm /= np.maximum(np.linalg.norm(Xm, axis=1), 1e-12)[:, None]
