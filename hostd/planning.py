@@ -155,11 +155,10 @@ class _Server:
                 env=_child_env(), start_new_session=True, text=True, bufsize=1)
         except OSError:
             self.proc = None
-            return False
+            return
         self.replies, self.ready = [], False
         threading.Thread(target=self._read, args=(self.proc,), daemon=True,
                          name="planserver").start()
-        return True
 
     def _read(self, proc):
         for line in proc.stdout:
