@@ -78,6 +78,7 @@ TIME_COLUMNS = [
     ("pictures s", lambda n, r: _stage(r, "pictures")),
     ("other s", lambda n, r: _other(r)),
     ("all stages s", lambda n, r: _all(r)),
+    ("each run s", lambda n, r: _runs(r)),
     ("wall s", lambda n, r: _median(r, "wall_s")),
     ("peak RSS MB", lambda n, r: _f(r.get("peak_rss_mb"), 0)),
     ("moves/s", lambda n, r: _moves(r)),
@@ -91,7 +92,9 @@ TABLES = [
     ("The paths", "the lower layers' paths unless a column says otherwise", PATH_COLUMNS),
     ("Time and memory", "CPU seconds per stage on one core (BLAS threads 1) where the result "
      "has them, else wall seconds; `other`: load, validate, imports and the looks at other "
-     "methods; `all stages`: CPU (wall where no CPU was kept); `moves/s`: the G-code's, then "
+     "methods; `all stages`: CPU (wall where no CPU was kept); `each run`: a plan timed "
+     "several times (the methods group's free method), every run's CPU seconds with the "
+     "imports, and the stages are those of the median run; `moves/s`: the G-code's, then "
      "over the link", TIME_COLUMNS),
 ]
 # The README's block: at most 8 columns.
@@ -258,12 +261,16 @@ def headline(groups):
     if not models:
         return "No benchmark has been run yet: `python benchmarks/pipeline.py`."
     cond = groups["methods"]["conditions"]
+    runs = max(len(((r.get("repeats") or {}).get("plan_cpu_s") or {}).get("runs", [0]))
+               for r in models.values())
     return "\n".join(_table(models, README_COLUMNS) + [
         "", "%s, one core (BLAS threads 1), commit %s (%s), the free layout method (the "
-        "relief fitted to the material). `plan s`: every stage's CPU seconds with the imports; "
-        "`distance to the shape`: the simulated sheet from the input as given. Both methods "
-        "and every figure, with its conditions: [docs/figures.md](docs/figures.md)." % (
-            cond.get("cpu", "?"), cond.get("commit", "?"), cond.get("date", "?"))])
+        "relief fitted to the material). `plan s`: every stage's CPU seconds with the "
+        "imports%s; `distance to the shape`: the simulated sheet from the input as given. "
+        "Both methods and every figure, with its conditions: [docs/figures.md]"
+        "(docs/figures.md)." % (
+            cond.get("cpu", "?"), cond.get("commit", "?"), cond.get("date", "?"),
+            ", the median of %d runs" % runs if runs > 1 else "")])
 
 
 def replace_block(text, body):
@@ -415,6 +422,13 @@ def _all(r):
     if r.get("cpu_s") is not None:
         return _f(r["cpu_s"] + (r.get("imports") or {}).get("cpu_s", 0.0), 1)
     return _median(r, "all_stages_s")
+
+
+def _runs(r):
+    """Every timed run's CPU seconds with the imports, where a plan was timed more than
+    once."""
+    rep = (r.get("repeats") or {}).get("plan_cpu_s")
+    return None if not rep else ", ".join("%.1f" % x for x in rep["runs"])
 
 
 def _moves(r):

@@ -18,7 +18,8 @@ simulation settles the coarse sheet (``mesh.l_sim_mm: 2``) and then the full
 mesh from its shape. The methods group runs both methods, each checked by the
 thin shell, and keeps per model each stage's wall and CPU seconds (``stages``; the
 pictures apart from the G-code), the imports', the peak RSS, the report's
-``fidelity`` section, and, where :data:`REFERENCE_SETTLE` names one, the mean
+``fidelity`` section (each free-method plan timed three times and the median run
+kept, ``--repeats``), and, where :data:`REFERENCE_SETTLE` names one, the mean
 displacement of a full-resolution settle of the program the plan chose
 (``reference_displacement_mm``) beside the plan's own. The host (CPU, load average)
 is in ``machine``; every child runs pinned to one core.
@@ -363,12 +364,13 @@ METHOD_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak"
 REFERENCE_SETTLE = "pipeline.simulation.staged:simulate_free"
 
 
-def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline")):
+def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline"), repeats=3):
     """Both layout methods, whole plans checked by the same thin-shell simulation: the
     reference shapes, the two saddles, the rough generated terrain and the real terrain,
     each once (the quality figures are deterministic). The free method's relief is fitted
     to the material, even where a sidecar asks for a height; the isoline method plans it
-    as given. ``tiles``: the real tiles' names (default all), ``methods``: which to run."""
+    as given. ``tiles``: the real tiles' names (default all), ``methods``: which to run;
+    ``repeats``: how often each free-method plan is timed (:func:`_timed`)."""
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         inputs = []
@@ -381,7 +383,8 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline")):
         args = {"free": ("free", "fit"), "isoline": ("isoline", "shell")}
         for name, path in inputs:
             out[name] = {"methods": {
-                m: _child(PLAN, str(path), tmp + "/out", *args[m], reference=m == "free")
+                m: _timed(repeats if m == "free" else 1, str(path), tmp + "/out", *args[m],
+                          reference=m == "free")
                 for m in methods}}
         # The time targets name a 175 mm real tile: each tile again at that size, with
         # the default method; and each fitted by lowering its relief only (`fit: relief`,
@@ -391,17 +394,36 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline")):
             if path.suffix == ".png" and "longest_diameter_mm" in free:
                 big = _at_size(path, Path(tmp) / "big", 175.0 / free["longest_diameter_mm"])
                 out[name + " at 175 mm"] = {"methods": {
-                    "free": _child(PLAN, str(big), tmp + "/out", "free", "fit",
+                    "free": _timed(repeats, str(big), tmp + "/out", "free", "fit",
                                    reference=True)}}
                 # As a user drops a tile: its size, no height, so the plan fits it.
                 bare = _at_size(path, Path(tmp) / "bare", 175.0 / free["longest_diameter_mm"],
                                 drop=("height_mm",))
                 out[name + " at 175 mm, no height"] = {"methods": {
-                    "free": _child(PLAN, str(bare), tmp + "/out", "free", reference=True)}}
+                    "free": _timed(repeats, str(bare), tmp + "/out", "free", reference=True)}}
                 lowered = _with(path, Path(tmp) / "lowered", fit="relief")
                 out[name + " lowered only"] = {"methods": {
                     "free": _child(PLAN, str(lowered), tmp + "/out", "free", "fit")}}
     return out
+
+
+def _timed(repeats, *args, reference=False):
+    """The plan ``args`` (as :data:`PLAN` takes them) run ``repeats`` times, the first with
+    ``reference``: the run whose CPU seconds (imports included) are the median (the lower
+    middle one of an even count), with every
+    run's under ``repeats``. On this shared machine a single run reads 15-25 % off as a
+    neighbour's load comes and goes, more than the gap to the time targets; what a plan
+    computes does not change from run to run, only its times."""
+    runs = [_child(PLAN, *args, reference=reference)]
+    runs += [_child(PLAN, *args) for _ in range(max(repeats, 1) - 1)]
+    if len(runs) == 1 or any("error" in r for r in runs):
+        return runs[0]
+    total = [r["cpu_s"] + r["imports"]["cpu_s"] for r in runs]
+    kept = dict(runs[sorted(range(len(runs)), key=total.__getitem__)[(len(runs) - 1) // 2]])
+    kept.update({k: runs[0][k] for k in ("reference_displacement_mm", "reference_cpu_s")})
+    kept["repeats"] = {"plan_cpu_s": {"runs": [round(t, 3) for t in total],
+                                      "median": round(statistics.median_low(total), 3)}}
+    return kept
 
 
 def _at_size(png, folder, factor, drop=()):
@@ -446,6 +468,9 @@ def main():
                     "(default: every tile; empty: none)")
     ap.add_argument("--methods", default="free,isoline",
                     help="layout methods for the methods group (default: free,isoline)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="how often the methods group times each free-method plan (the "
+                    "median run is kept; default 3)")
     ap.add_argument("--no-save", action="store_true",
                     help="print only; keep benchmarks/results and docs/figures.md as they are")
     args = ap.parse_args()
@@ -466,7 +491,7 @@ def main():
         result["methods"] = bench_methods(
             **({"names": plan_kw["names"]} if plan_kw else {}),
             tiles=None if args.tiles is None else [t for t in args.tiles.split(",") if t],
-            methods=tuple(args.methods.split(",")))
+            methods=tuple(args.methods.split(",")), repeats=args.repeats)
     result["benchmark_wall_s"] = round(time.time() - t0, 1)
     print(json.dumps(result, indent=2))
     if not args.no_save:

@@ -120,3 +120,18 @@ def test_at_rest_counts_the_coarse_sheet_and_the_plans_mesh_apart(tmp_path):
                  folder=res)
     text = figures.render(figures.load(res))
     assert "yes (571 + 70)" in text and "yes (176 + 49)" in text and "+ -" not in text
+
+
+def test_a_plan_timed_several_times_shows_its_median_and_every_run(tmp_path):
+    """The methods group times each free-method plan more than once on a shared machine:
+    the README names the median and how many runs, docs/figures.md every run."""
+    res = tmp_path / "results"
+    timed = dict(DOME, fit_scale=1.0, cpu_s=9.4, imports={"cpu_s": 0.6},
+                 stages={"simulate": {"wall_s": 2.0, "cpu_s": 2.0}},
+                 repeats={"plan_cpu_s": {"runs": [10.0, 12.5, 9.6], "median": 10.0}})
+    figures.save("methods", {"dome": {"methods": {"free": timed}}}, COND, folder=res)
+    readme = tmp_path / "README.md"
+    readme.write_text("# hostd\n")
+    figures.write(res, tmp_path / "figures.md", readme)
+    assert "| 10.0 |" in readme.read_text() and "the median of 3 runs" in readme.read_text()
+    assert "| 10.0 | 10.0, 12.5, 9.6 |" in (tmp_path / "figures.md").read_text()
