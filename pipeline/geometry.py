@@ -296,6 +296,23 @@ def polyline_length(points):
     return float(np.hypot(*np.diff(points, axis=0).T).sum()) if len(points) > 1 else 0.0
 
 
+def polyline_lengths(polylines):
+    """Length (mm) of each of ``polylines`` (list of (k_i, 2) mm; 0 for fewer than two
+    points), all at once: (p,). A call of :func:`polyline_length` per piece took 0.05 s
+    on a stripe set's thousands."""
+    if not len(polylines):
+        return np.zeros(0)
+    P = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p in polylines])
+    k = np.array([len(p) for p in polylines])
+    step = np.hypot(*np.diff(P, axis=0).T)
+    # The step from each polyline's last point to the next one's first is not its own.
+    ends = np.cumsum(k)[:-1][k[:-1] > 0] - 1
+    step[ends[ends < len(step)]] = 0.0
+    first = np.cumsum(k) - k
+    out = np.add.reduceat(np.r_[step, 0.0], np.minimum(first, len(step)))
+    return np.where(k > 1, out, 0.0)
+
+
 def polygon_area(points):
     """Signed area of a closed polygon ((k, 2), first point not repeated); > 0 counter-clockwise."""
     x, y = points[:, 0], points[:, 1]

@@ -63,9 +63,10 @@ def _kept_points(pts, seg_start, vals, tolerance_mm, value_step):
     coords = np.column_stack([pts[run_pts[order]], run_pts[order].astype(float)])
     lines = shapely.linestrings(coords, indices=run_ids[order])
     simple = shapely.simplify(lines, tolerance_mm, preserve_topology=False)
-    kept = shapely.get_coordinates(simple, include_z=True)[:, 2]
-    isolated = np.setdiff1d(np.arange(len(pts)), run_pts)       # one-point traces
-    return np.union1d(np.rint(kept).astype(np.int64), isolated)
+    kept = np.ones(len(pts), bool)
+    kept[run_pts] = False                                       # one-point traces stay
+    kept[np.rint(shapely.get_coordinates(simple, include_z=True)[:, 2]).astype(np.int64)] = True
+    return np.flatnonzero(kept)
 
 
 def _rebuild(pts, trace_of_pt, keep, vals, n_pts):

@@ -20,7 +20,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from pipeline.geometry import hat_gradients, polyline_length, quarter_turn, signed_areas_2d
+from pipeline.geometry import (hat_gradients, polyline_length, polyline_lengths, quarter_turn,
+                               signed_areas_2d)
 from pipeline.paths.ends import REACH
 from pipeline.paths.phase import BRANCH, FORK, corner_phases, stripe_matrix, vertex_line_field
 from pipeline.paths.sheet import Sheet
@@ -347,7 +348,8 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     # A piece shorter than a path width is a blob, not a path: where stripes graze the
     # outline's triangles (the 175 mm dome's rim left 14 of 0.03-0.3 mm beside its one
     # trace) each would print a travel and a retraction for less than a bead's width.
-    chains = [c for c in chains if c[2] or polyline_length(c[0]) >= width_mm] or chains
+    length = polyline_lengths([p for p, _, _ in chains])
+    chains = [c for c, mm in zip(chains, length) if c[2] or mm >= width_mm] or chains
     face = np.concatenate([t[:, 1] for _, t, _ in chains]).astype(np.int64)
     chains = [(p, t[:, 0], closed) for p, t, closed in chains]
     raw = [(np.vstack([p, p[:1]]) if closed else p, closed) for p, _, closed in chains]
