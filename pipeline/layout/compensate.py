@@ -28,14 +28,13 @@ DISTINCT = 0.01
 
 
 def relaid(vertices, faces, xy, direction, across, min_shrink, s_min, s_max,
-           iterations=ITERATIONS, tol=1e-6, start=None):
+           iterations=ITERATIONS, tol=1e-6):
     """The free layout with the program's shrink across ``d`` and room along it.
 
     vertices : (n, 3) mm, the target; faces : (m, 3); xy : (n, 2) mm, the first layout
     (the start); direction : (m, 2) unit, its print directions; across : (m,) the
     sheet's shrink across ``d``; min_shrink : (m,) the least shrink along ``d``;
-    s_min, s_max : the printable range along ``d``; start : (n, 2) mm, optional, where
-    the solve starts instead of ``xy`` (a layout solved so on a coarser sheet, carried).
+    s_min, s_max : the printable range along ``d``.
     Returns (xy (n, 2) mm, direction (m, 2) unit, sigma (m,) the shrink along it,
     {iterations, residual, max_move_mm}).
     """
@@ -53,8 +52,7 @@ def relaid(vertices, faces, xy, direction, across, min_shrink, s_min, s_max,
     def labelled(J):
         P, _, d[0] = _project_labelled(J, d[0], lam_lo, lam_hi, a)
         return P
-    X = X0.copy() if start is None else np.array(start, dtype=float)
-    X, it, residual, _ = local_global(system, X, labelled, iterations, tol)
+    X, it, residual, _ = local_global(system, X0.copy(), labelled, iterations, tol)
     _, lam, d = _project_labelled(jacobians(system[0], X, m), d[0], lam_lo, lam_hi, a)
     return X, d, 1.0 - 1.0 / lam, {"iterations": it, "residual": residual,
                                     "max_move_mm": float(np.abs(X - X0).max())}

@@ -35,10 +35,6 @@ ACROSS_GAIN = 0.2
 # (the starfish: 0.106 % and its arm tips 2.1-2.3 mm after one, 0.100 % and 2.0-2.1 mm after
 # two, the same after three).
 RELAY_PASSES = 2
-# Local/global iterations of each relaid pass started from a layout relaid on a coarser
-# sheet and carried (the 175 mm dome: carried, it lies 0.03 mm from the layout 60 cold
-# iterations solve, against 0.47 mm for the first layout).
-WARM_ITERATIONS = 10
 
 
 def simulate_free(hf, mesh, flat, profile, twist=True, across=True, tally=None, relief=None):
@@ -145,22 +141,21 @@ class Programs:
             return sim
         return counted
 
-    def stack(self, relay, twist, bilayer, start=None):
+    def stack(self, relay, twist, bilayer):
         """The stack with two layers across (:func:`_across_stack`): (program, metric)."""
         return _across_stack(self.derivs, self.mesh, self.flat, self.K, self.sigma,
                              self.profile, self.thickness, self.turn if twist else 0.0,
-                             bilayer, relay, start)
+                             bilayer, relay)
 
-    def chosen(self, which, twist=True, start=None):
-        """The program ``which`` (:data:`CHOICES`) and ``settle(**kw)`` of its sheet;
-        ``start``: where its relaid layout is looked for (:func:`_across_stack`)."""
+    def chosen(self, which, twist=True):
+        """The program ``which`` (:data:`CHOICES`) and ``settle(**kw)`` of its sheet."""
         bilayer = self.programmed(0.0)
         if which == "bilayer":
             return bilayer, lambda **kw: self.settle(bilayer, **kw)
         if which == "twist":
             crossed = self.programmed(self.turn)
             return crossed, lambda **kw: self.settle(crossed, **kw)
-        stack, metric = self.stack(which == "across_relaid", twist, bilayer, start)
+        stack, metric = self.stack(which == "across_relaid", twist, bilayer)
         return stack, self.counted(_settle_stack(self.mesh, stack, metric))
 
 
@@ -218,7 +213,7 @@ def _settle_stack(mesh, stack, metric):
 
 
 def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilayer,
-                  relay=True, start=None):
+                  relay=True):
     """The program with two layers across ``d`` (:mod:`pipeline.layout.laminate`), on
     the layout solved again for the shrink that stack prints (:func:`_relaid_for`,
     :data:`RELAY_PASSES` times), the stack made again on each. Printed on the first
@@ -227,9 +222,7 @@ def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilaye
     instead of 0.39 %, the hyperbolic paraboloid 0.06 instead of 0.35 % (each settled
     from flat; the smoothed coast tile 0.54 against 0.48 %). Without ``relay`` the stack
     is made on the first layout, its layers along ``d`` those of ``bilayer`` (the program
-    already made there). ``start``: (n, 2) mm, where the relaid layout is looked for
-    (:func:`pipeline.layout.compensate.relaid`): the layout relaid so on a coarser sheet,
-    carried; each pass then takes :data:`WARM_ITERATIONS`.
+    already made there).
     ``derivs``: the target's :func:`pipeline.layout.curvature.surface_derivatives`.
     Returns (program with ``layout`` and ``across = {"relaid": ...}``, its mean shrink
     tensor (m, 2, 2))."""
@@ -241,10 +234,10 @@ def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilaye
     laid, info = flat, None
     for _ in range(RELAY_PASSES if relay else 0):
         d = np.asarray(laid.direction, dtype=float)
-        new, info = _relaid_for(stack_on(K, d, sigma).metric(d), laid, mesh, lim, start)
+        new, info = _relaid_for(stack_on(K, d, sigma).metric(d), laid, mesh, lim)
         if new is laid:
             break
-        laid, start = new, None if start is None else new.xy
+        laid = new
         s_laid = np.clip(laid.sigma, lim.s_min, lim.s_max)
         K = curvature.target_tensor(None, mesh, laid, s_laid, derivs=derivs)
         sigma = curvature.room_for(K, laid.direction, s_laid, thickness(s_laid), lim.s_min,
@@ -257,7 +250,7 @@ def _across_stack(derivs, mesh, flat, K, sigma, profile, thickness, turn, bilaye
     return stack, lam.metric(laid.direction)
 
 
-def _relaid_for(metric, laid, mesh, lim, start=None):
+def _relaid_for(metric, laid, mesh, lim):
     """The layout ``laid`` solved again for the stack's mean shrink ``metric`` ((m, 2, 2)):
     held across ``d``, along ``d`` at least what the stack shrinks there (the layout's
     and the room; the starfish rests at 0.10 % so, at 0.15 % with only the room held).
@@ -271,9 +264,7 @@ def _relaid_for(metric, laid, mesh, lim, start=None):
     e = quarter_turn(d)
     xy, d2, s2, info = relaid(mesh.vertices, mesh.faces, laid.xy, d,
                               np.einsum("mi,mij,mj->m", e, metric, e),
-                              np.einsum("mi,mij,mj->m", d, metric, d), lim.s_min, lim.s_max,
-                              **({} if start is None else
-                                 {"start": start, "iterations": WARM_ITERATIONS}))
+                              np.einsum("mi,mij,mj->m", d, metric, d), lim.s_min, lim.s_max)
     info["flipped"] = int(np.count_nonzero(signed_areas_2d(xy, mesh.faces) <= 0))
     info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
     if info["flipped"]:

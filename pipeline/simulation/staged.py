@@ -45,13 +45,6 @@ COARSE_ACROSS = 50
 # 10): at 3e-4 a 175 mm tile saves 3 s, but the held 60 mm terrain tile of the hold's test
 # then ends 0.321 % of its diameter from its target, past its 0.32 % limit.
 FINE_REST_TOL = 1e-4
-# A stack kept on its relaid layout could solve that layout on the plan's mesh from the
-# coarse sheet's, carried (:data:`pipeline.simulation.programmed.WARM_ITERATIONS` a pass
-# instead of 60). Off: the layout so solved lies within 0.055 mm of the cold one on a 60 mm
-# saddle, but the upper group's stripes there then follow their field to 12.5 degrees at
-# the 95th percentile instead of under 12; and since a pass stops where its residual
-# stalls, the 175 mm dome's first pass takes 26 iterations cold and 28 so started.
-WARM_RELAY = False
 # The trials run on the plan's own mesh where it is not this much finer than the coarse
 # sheet: a sheet barely coarser would save little and carry the answer for nothing.
 FINER = 1.8
@@ -95,12 +88,7 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm="a
         sim = reference_settle(hf, mesh, flat, profile, which, twist, program=(prog, settle),
                                relief=relief)
     else:
-        start = None
-        if WARM_RELAY and which == "across_relaid" and cprog.layout is not None:
-            # The coarse sheet's relaid layout, as its move from the first one.
-            start = flat.xy + _interpolated(_xy(cmesh), cmesh.faces, cprog.layout.xy - cflat.xy,
-                                            _xy(mesh))
-        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, start, relief)
+        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, relief=relief)
         sim = settle(start=carried(cmesh, csim.vertices, mesh.vertices),
                      rest_tol=FINE_REST_TOL)
     # The comparisons' figures are the coarse sheet's: they say on which sheet.
@@ -126,13 +114,8 @@ def reference_settle(hf, mesh, flat, profile, which, twist=True, program=None, r
     return programmed._continued(settle(start=sim.vertices), sim)
 
 
-def _chosen(hf, mesh, flat, profile, which, twist, start=None, relief=None):
-    return programmed.Programs(hf, mesh, flat, profile, relief=relief).chosen(which, twist,
-                                                                            start)
-
-
-def _xy(mesh):
-    return np.asarray(mesh.vertices, dtype=float)[:, :2]
+def _chosen(hf, mesh, flat, profile, which, twist, relief=None):
+    return programmed.Programs(hf, mesh, flat, profile, relief=relief).chosen(which, twist)
 
 
 def _across_report(coarse_across, prog, coarse_mm):
