@@ -25,7 +25,7 @@ from pipeline.simulation.staged import simulate_free
 # few seconds on a 175 mm tile); the thin shell's displacement changes by less than a
 # tenth from this grid to the plan's.
 QUICK_GRID_MM = 2.0
-QUICK_ITERATIONS = 100
+QUICK_ITERATIONS = 30
 # The smoothing looked for doubles up to this share of the field's longest side: on the
 # real tiles the sheet holds within 3 % at 6 mm, a sixteenth of their side.
 HOLD_CAP = 0.1

@@ -36,10 +36,12 @@ def test_the_same_target_is_factored_once():
 
 def test_the_solve_stops_where_its_residual_stalls(monkeypatch):
     """A dome's layout stops well before its cap once the residual barely falls, and
-    lies within a hundredth of a millimetre of the layout the cap gives."""
+    lies within a hundredth of a millimetre of the layout 200 plain steps give (mixed
+    steps run to a cap creep further along the same soft modes)."""
     mesh = build_grid_mesh(shapes.dome(diameter_mm=60.0, height_mm=10.0), 1.0)
     stalled = flatten_free(mesh, 0.0, 0.34, iterations=200)
     monkeypatch.setattr(free, "STALL", -1.0)        # falls never stall: run to the cap
+    monkeypatch.setattr(free, "ANDERSON", 0)
     capped = flatten_free(mesh, 0.0, 0.34, iterations=200)
     assert capped.iterations == 200 and stalled.converged and stalled.iterations < 100
     assert np.abs(stalled.xy - capped.xy).max() < 0.01
@@ -56,3 +58,17 @@ def test_a_plan_keeps_no_layout_systems_once_its_sheet_is_settled(tmp_path):
     (tmp_path / "dome.yaml").write_text("pixel_mm: %r\n" % hf.pixel_mm)
     plan = plan_file(tmp_path / "dome.npy", load_profile("generic-0.5mm"), method="free")
     assert plan.report["flatten"]["method"] == "free" and not free._systems
+
+
+def test_mixed_steps_rest_closer_in_a_quarter_of_the_solves(monkeypatch):
+    """A saddle's layout creeps along soft modes under plain local/global steps; mixed by
+    Anderson acceleration, 50 solves rest closer to the admissible maps than 200 plain
+    ones (the residual: 5.2e-4 against 9.2e-4)."""
+    mesh = build_grid_mesh(shapes.SADDLES["hyperbolic_paraboloid"](), 2.0)
+    monkeypatch.setattr(free, "STALL", -1.0)
+    mixed = flatten_free(mesh, 0.0, 0.34, iterations=50)
+    monkeypatch.setattr(free, "ANDERSON", 0)
+    plain = flatten_free(mesh, 0.0, 0.34, iterations=200)
+    assert mixed.iterations == 50 and plain.iterations == 200
+    assert mixed.residual < 0.8 * plain.residual
+    assert mixed.flipped == 0 and mixed.invalid_area_fraction <= plain.invalid_area_fraction

@@ -184,7 +184,7 @@ def slope_bound(hf, s_max, share=0.98):
 
 
 def fit_height(hf, s_min, s_max, smooth_mm=0.0, target=TARGET, grid_mm=None,
-               iterations=100, steps=3, fine_mm=1.0, fine_steps=6, fine_iterations=200,
+               iterations=30, steps=3, fine_mm=1.0, fine_steps=6, fine_iterations=50,
                resmooth=None, reach_of=None, smooth_first=False):
     """The largest relief scale (<= 1) at which ``hf`` forms with the free layout.
 
@@ -322,11 +322,13 @@ def _close_in(ok, tried, a, b, target, steps, spacing, iterations, area_a=None):
         if b - a < 0.03 * b:
             break
         w = -fa / max(fb - fa, 1e-12)
-        # Two steps up from near the lower end that both formed: the area is flat there
-        # and rises all at once above (a cone's flank passes the limit together), so
-        # bisect rather than creep up.
+        # A step up from near the lower end that formed: the area is flat there and
+        # rises all at once above (a cone's flank passes the limit together), so bisect
+        # rather than creep up (laid out closer to rest by mixed steps, a 60 mm cone's
+        # area stays at 0.3 % up to 0.85 of its relief and is 12 % at 0.87; crept up
+        # twice, the fit stopped at 0.77).
         near = w < 0.25
-        x = a + (b - a) * (0.5 if crept > 1 else min(max(w, 0.1), 0.9))
+        x = a + (b - a) * (0.5 if crept > 0 else min(max(w, 0.1), 0.9))
         if ok(x, spacing, iterations):
             crept = crept + 1 if near else 0
             a, fa = x, min(tried[-1][1] - target, 0.0)

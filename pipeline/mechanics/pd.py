@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from scipy.linalg import blas
 from scipy.sparse.linalg import splu
 
+from pipeline.mechanics.anderson import Anderson
 from pipeline.mechanics.constraints import (corner_coefficients, face_geometry, hinge_weights,
                                   project_corners, project_edges, row_lengths)
 
@@ -296,35 +297,18 @@ def minimize(system, X, iterations, tol, planar=False, anderson=5, callback=None
     """
     Q, E = system.project(X, planar)
     energies = []
-    dF, dG = [], []
-    f_prev = g_prev = None
+    mix = Anderson(anderson) if anderson else None
     converged = False
     it = 0
     for it in range(1, iterations + 1):
         energies.append(E)
         G = system.solve(Q, X)
-        F = (G - X).ravel()
-        cand = G
-        if anderson:
-            g = G.ravel()
-            if f_prev is not None:
-                dF.append(F - f_prev)
-                dG.append(g - g_prev)
-                if len(dF) > anderson:
-                    dF.pop(0)
-                    dG.pop(0)
-            f_prev, g_prev = F, g
-            if dF:
-                A = np.stack(dF, axis=1)
-                gamma = np.linalg.lstsq(A, F, rcond=None)[0]
-                cand = (g - np.stack(dG, axis=1) @ gamma).reshape(G.shape)
+        cand = G if mix is None else mix.mixed(X, G)
         Qc, Ec = system.project(cand, planar)
         if cand is not G and not Ec <= E:
             cand = G
             Qc, Ec = system.project(G, planar)
-            dF.clear()
-            dG.clear()
-            f_prev, g_prev = F, G.ravel()
+            mix.restart()
         change = float(np.abs(cand - X).max())
         X, Q, E = cand, Qc, Ec
         if callback is not None:

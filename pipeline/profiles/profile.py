@@ -132,7 +132,7 @@ class FlattenParams:
     isoline method (paper 6.2 defaults); local/global iterations of the free one."""
     method: str = _str("free", choices=("isoline", "free"))
     iterations: int = _num(50, integer=True)
-    free_iterations: int = _num(200, integer=True)
+    free_iterations: int = _num(50, integer=True)
     # How the plan checks an isoline layout: the paper's projective dynamics, or the
     # thin shell the free method uses (printed thickness, converges under refinement).
     simulation: str = _str("paper", choices=("paper", "shell"))
