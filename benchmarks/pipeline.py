@@ -229,12 +229,15 @@ SHAPE = r"""
 import numpy as np
 from pipeline.input import shapes
 name, out = sys.argv[1], sys.argv[2]
-hf = {**shapes.REFERENCE, **shapes.SADDLES, **shapes.TERRAIN}[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else {}))
-np.save(out + "/" + name + ".npy", hf.z.astype(np.float32))
+# A third argument: the generated terrain's side (mm), saved as NAME_SIDE.
+kw = {"size_mm": float(sys.argv[3])} if len(sys.argv) > 3 else {}
+hf = {**shapes.REFERENCE, **shapes.SADDLES, **shapes.TERRAIN}[name](**({"diameter_mm": 175.0} if name in ("dome", "starfish") else kw))
+stem = name + ("_" + sys.argv[3].replace(".", "_") if kw else "")
+np.save(out + "/" + stem + ".npy", hf.z.astype(np.float32))
 # The rough terrain's two closed basins are 10.5 and 7.8 mm deep: filled, as a real
 # tile's sidecar fills its own (max_fill_mm), since the sheet cannot form a bowl.
 fill = "max_fill_mm: 11\n" if name in shapes.TERRAIN else ""
-open(out + "/" + name + ".yaml", "w").write("pixel_mm: %r\n%s" % (hf.pixel_mm, fill))
+open(out + "/" + stem + ".yaml", "w").write("pixel_mm: %r\n%s" % (hf.pixel_mm, fill))
 print(json.dumps({"ok": True}))
 """
 
@@ -281,7 +284,7 @@ if method == "isoline":
 else:
     mesh = build_grid_mesh(hf, 1.0)
     t2 = time.perf_counter()
-    flat = flatten_free(mesh, lim.s_min, lim.s_max)
+    flat = flatten_free(mesh, lim.s_min, lim.s_max, iterations=200)
     out.update(invalid_edge_fraction=flat.invalid_edge_fraction,
                invalid_area_fraction=flat.invalid_area_fraction,
                stretch_area_fraction=flat.stretch_area_fraction,
@@ -358,6 +361,8 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
 
 METHOD_MODELS = ("dome", "starfish", "saddle", "three_islands", "elongated_peak", "terrain_tile",
                  "hyperbolic_paraboloid", "monkey_saddle", "rough_terrain")
+# Generated square tiles planned again at a real tile's size, 175 mm across (diagonal).
+ACROSS_175 = ("rough_terrain",)
 # The full-resolution settle the methods group sets beside each plan's own, as
 # "module:function" (called as the plan calls its settle, with reference=True; returns
 # (program, SimResult)); None: no column.
@@ -404,6 +409,16 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline"), 
                 lowered = _with(path, Path(tmp) / "lowered", fit="relief")
                 out[name + " lowered only"] = {"methods": {
                     "free": _child(PLAN, str(lowered), tmp + "/out", "free", "fit")}}
+        # The generated terrain is a 175 mm square, twice the area of a real tile 175 mm
+        # across: again at that size (its detail the same per mm), to tell size from relief.
+        for name in names:
+            if name in ACROSS_175 and "free" in methods:
+                side = "%.1f" % (175.0 / 2 ** 0.5)
+                _child(SHAPE, name, tmp, side)
+                out[name + " 175 mm across"] = {"methods": {
+                    "free": _timed(repeats, str(Path(tmp) / ("%s_%s.npy" % (
+                        name, side.replace(".", "_")))),
+                                   tmp + "/out", "free", "fit", reference=True)}}
     return out
 
 
