@@ -36,11 +36,12 @@ FREE_BELOW = 0.05
 # last probe is the plan's own mesh.
 SYSTEMS_KEPT = 2
 # Local/global stops where its residual falls by less than this fraction over the last
-# STALL_WINDOW iterations: from there on the layout only creeps along soft modes. The
-# 175 mm dome's layout stalls after 40 of its 200 iterations, its relaid layouts after 26
-# and 11 of 60; laid so, its sheet lies within 0.007 mm of the capped one's and settles
-# within 0.002 mm of it (flatten 2.9 -> 1.7 s CPU, simulate 8.6 -> 5.6 s). A saddle's
-# residual keeps falling: it runs to the cap as before.
+# STALL_WINDOW iterations: from there on the layout only creeps along soft modes. In plain
+# steps the 175 mm dome's layout stalled after 40 of its 200 iterations, its relaid layouts
+# after 26 and 11 of 60; laid so, its sheet lay within 0.007 mm of the capped one's and
+# settled within 0.002 mm of it (flatten 2.9 -> 1.7 s CPU, simulate 8.6 -> 5.6 s). Mixed
+# (:data:`ANDERSON`), a 60 mm dome's stalls after 20 solves, 0.007 mm from the layout 200
+# plain steps give. A saddle's residual keeps falling: it runs to the cap.
 STALL = 0.005
 STALL_WINDOW = 5
 # The free layout's local/global steps mixed by Anderson acceleration over the last so
