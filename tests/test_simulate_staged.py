@@ -89,7 +89,7 @@ def test_a_mesh_not_much_finer_than_the_coarse_sheet_is_tried_on_itself(monkeypa
 
 def test_a_large_sheet_tries_on_coarser_triangles_than_a_small_one():
     """The trials' triangles are 2.5 mm on a 60 mm model and 3 mm from about 150 mm of
-    longest diameter on (where 3 mm rests as 2.5 mm does), and never coarser."""
+    diagonal on (where 3 mm rests as 2.5 mm does), and never coarser."""
     def square(side_mm):
         n = int(side_mm / 0.5) + 1
         return build_grid_mesh(HeightField(np.zeros((n, n)), 0.5), 5.0)

@@ -30,8 +30,9 @@ from pipeline.simulation.resample import locate
 # 175 mm tiles and the rough terrain, but a 40 mm dome's trials then rested 21 % further
 # from its target than its plan's mesh did (0.436 against 0.360 mm; 6 % at 2.5 mm).
 COARSE_MM = 2.5
-# So a large sheet's trials settle on triangles up to COARSE_MAX_MM, as long as its longest
-# diameter holds COARSE_ACROSS of them (from about 125 mm on; 3 mm from 150 mm): 3 mm rests
+# So a large sheet's trials settle on triangles up to COARSE_MAX_MM, as long as the diagonal
+# of its bounding box holds COARSE_ACROSS of them (from a 125 mm diagonal on, 3 mm from 150
+# mm; a disk's diagonal is 1.41 times its diameter, a square's its diameter): 3 mm rests
 # as 2.5 mm does on the 150-175 mm models (each within 8 % of its full settle), and a 60
 # mm dome, whose trials at 3 mm rest 8 % off (3 % at 2.5 mm), keeps 2.5 mm.
 COARSE_MAX_MM = 3.0
@@ -132,7 +133,7 @@ def _across_report(coarse_across, prog, coarse_mm):
 
 def coarse_spacing_mm(mesh):
     """The trials' triangle size for ``mesh`` (mm): :data:`COARSE_MM`, or coarser up to
-    :data:`COARSE_MAX_MM` where the target's longest diameter (x, y) holds
+    :data:`COARSE_MAX_MM` where the diagonal of the target's bounding box (x, y) holds
     :data:`COARSE_ACROSS` triangles of it."""
     V = np.asarray(mesh.vertices, dtype=float)[:, :2]
     diameter = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
