@@ -238,7 +238,7 @@ np.save(out + "/" + stem + ".npy", hf.z.astype(np.float32))
 # tile's sidecar fills its own (max_fill_mm), since the sheet cannot form a bowl.
 fill = "max_fill_mm: 11\n" if name in shapes.TERRAIN else ""
 open(out + "/" + stem + ".yaml", "w").write("pixel_mm: %r\n%s" % (hf.pixel_mm, fill))
-print(json.dumps({"ok": True}))
+print(json.dumps({"path": out + "/" + stem + ".npy"}))
 """
 
 
@@ -413,20 +413,17 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline"), 
         # across: again at that size (its detail the same per mm), to tell size from relief.
         for name in names:
             if name in ACROSS_175 and "free" in methods:
-                side = "%.1f" % (175.0 / 2 ** 0.5)
-                _child(SHAPE, name, tmp, side)
+                made = _child(SHAPE, name, tmp, "%.1f" % (175.0 / 2 ** 0.5))
                 out[name + " 175 mm across"] = {"methods": {
-                    "free": _timed(repeats, str(Path(tmp) / ("%s_%s.npy" % (
-                        name, side.replace(".", "_")))),
-                                   tmp + "/out", "free", "fit", reference=True)}}
+                    "free": _timed(repeats, made["path"], tmp + "/out", "free", "fit",
+                                   reference=True)}}
     return out
 
 
 def _timed(repeats, *args, reference=False):
     """The plan ``args`` (as :data:`PLAN` takes them) run ``repeats`` times, the first with
     ``reference``: the run whose CPU seconds (imports included) are the median (the lower
-    middle one of an even count), with every
-    run's under ``repeats``. On this shared machine a single run reads 15-25 % off as a
+    middle one of an even count), with every run's under ``repeats``. On this shared machine a single run reads 15-25 % off as a
     neighbour's load comes and goes, more than the gap to the time targets; what a plan
     computes does not change from run to run, only its times."""
     runs = [_child(PLAN, *args, reference=reference)]
