@@ -347,8 +347,8 @@ def bench_plan(names=("starfish", "dome", "saddle", "three_islands", "elongated_
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
-            _child(SHAPE, name, tmp)
-            runs = [_child(PLAN, str(Path(tmp) / (name + ".npy")), tmp + "/out", "isoline")
+            path = _child(SHAPE, name, tmp)["path"]
+            runs = [_child(PLAN, path, tmp + "/out", "isoline")
                     for _ in range(repeats if name == "dome" else 1)]
             out[name] = runs[0]
             if len(runs) > 1 and all("error" not in r for r in runs):
@@ -380,8 +380,7 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline"), 
     with tempfile.TemporaryDirectory() as tmp:
         inputs = []
         for name in names:
-            _child(SHAPE, name, tmp)
-            inputs.append((name, Path(tmp) / (name + ".npy")))
+            inputs.append((name, Path(_child(SHAPE, name, tmp)["path"])))
         if TERRAIN.is_dir():
             inputs += [(png.stem, png) for png in sorted(TERRAIN.glob("*.png"))
                        if tiles is None or png.stem in tiles]
