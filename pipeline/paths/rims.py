@@ -16,7 +16,7 @@ left out as a tail is, rather than printed as a trace of its own.
 
 import numpy as np
 
-from pipeline.geometry import polyline_arc, polyline_length
+from pipeline.geometry import polyline_arc, polyline_lengths
 from pipeline.paths.ends import _arc, _cut
 from pipeline.paths.links import _pieces, merge_joined
 from pipeline.paths.samples import nearest_other, sample_tree
@@ -61,7 +61,7 @@ def join_at_rim(chains, pw, boundary, longest, printed=None):
         ok &= ~np.isfinite(printed[1].query(mid, distance_upper_bound=pw / 3)[0])
     ends, found, tail = ends[ok], found[ok], tail[ok]
     end_id, tail_id = end_of[label[ends]], end_of[label[found]]
-    length = np.array([polyline_length(p) for p, _, _ in chains])
+    length = polyline_lengths([p for p, _, _ in chains])
     picked = _picked(end_id, tail_id, tail, length, pw)
     if not picked:
         return chains, np.zeros((0, 2, 2)), []
@@ -75,7 +75,7 @@ def leave_slivers(chains, pw, boundary, longest):
     """The chains less the open ones no longer than ``longest`` path widths that lie
     within ``ALONG_EDGE`` widths of the outline ``boundary`` all along, but for the
     longest chain. Returns (the chains, the slivers left out: list of (k, 2) mm)."""
-    length = np.array([polyline_length(p) for p, _, _ in chains])
+    length = polyline_lengths([p for p, _, _ in chains])
     short = [c for c, (_, _, closed) in enumerate(chains)
              if not closed and length[c] <= longest * pw and length[c] < length.max()]
     if not short:
