@@ -195,23 +195,24 @@ def test_the_smallest_eigenvector_of_a_nearly_degenerate_pair_is_found():
     assert rayleigh == pytest.approx(1.0, rel=2e-3)
 
 
-def test_joining_stripe_pieces_leaves_fewer_traces_and_less_overprint():
+def test_joining_stripe_pieces_leaves_fewer_traces_within_the_overprint_budget():
     """Pieces that end facing each other across bare sheet run on as one path: fewer
-    traces, and with hops that may print over nothing less hop length over other paths
-    than hopping from each trace's end to the nearest, with the paths unchanged."""
+    traces than the pieces left apart, and fewer the more a hop may print over other
+    paths; with no hop over paths allowed, no hop prints over one, and the paths are
+    the same in all three."""
     xy, faces = _disk()
     d = _field("two_half", xy[faces].mean(axis=1))
     sigma = np.full(len(faces), 0.2)
     # Joined at the edge, an end leaves a path's tail out: the paths would differ.
-    walked = stripe_toolpaths(xy, faces, d, sigma, WIDTH, join_factor=0.0,
-                              rim_tail_factor=0.0).info
+    apart = stripe_toolpaths(xy, faces, d, sigma, WIDTH, join_factor=0.0,
+                             rim_tail_factor=0.0).info
     joined = stripe_toolpaths(xy, faces, d, sigma, WIDTH, rim_tail_factor=0.0).info
     tight = stripe_toolpaths(xy, faces, d, sigma, WIDTH, over_factor=0.0,
                              rim_tail_factor=0.0).info
-    assert joined["traces"] <= tight["traces"] < walked["traces"]
-    assert tight["hop_overprint_mm"] < walked["hop_overprint_mm"]
+    assert joined["traces"] <= tight["traces"] < apart["traces"]
+    assert tight["hop_overprint_mm"] == 0.0 < joined["hop_overprint_mm"]
     for key in ("coverage", "overlap", "spacing_mm"):
-        assert joined[key] == walked[key]
+        assert joined[key] == apart[key] == tight[key]
 
 
 def test_pathless_triangles_are_told_apart_by_cause():

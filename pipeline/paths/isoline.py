@@ -335,6 +335,7 @@ def _order_traces(chains, children, link_mm, merge_angle_deg, merge_sigma, footp
     go, outside in); otherwise the nearest unvisited path. Arcs that meet the
     edge at a slant end further apart than a path width: a hop of up to three
     link lengths still joins them where it runs inside the sheet (along its edge).
+    With ``link_mm`` 0 the paths are only put in order, each a trace of its own.
 
     Returns (traces, sigma per segment: ``HOP`` at the hops, see
     :mod:`pipeline.paths.dry`).

@@ -315,14 +315,14 @@ def direction_angles(steps, face, *directions):
 
 
 def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
-                     merge_sigma=0.005, link_factor=1.6, join_factor=JOIN_FACTOR,
+                     merge_sigma=0.005, join_factor=JOIN_FACTOR,
                      over_factor=OVER_FACTOR, refine=True, retract=REACH, level=None,
                      sheet=None, rim_tail_factor=RIM_TAIL):
     """:class:`pipeline.paths.isoline.Toolpaths` along ``direction``: stripe pieces whose
     ends lie up to ``join_factor`` path widths apart joined first where the hop runs over
     other paths for at most ``over_factor`` widths (:mod:`pipeline.paths.links`), closed
-    ones bridged to a neighbour (:mod:`pipeline.paths.bridges`), then chained into
-    traces by short hops, as the isoline method's paths are; each segment
+    ones bridged to a neighbour (:mod:`pipeline.paths.bridges`), then put in order as
+    traces, each printed from its start to its end; each segment
     carries the shrink of the triangle it crosses; the report adds
     ``direction_angle_deg``. With ``refine`` the phase is carried to finer triangles
     (:func:`plan_stripes`); path ends that come within ``retract`` path widths of
@@ -366,7 +366,14 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     joined, slivers = leave_slivers(joined, width_mm, outline.boundary, rim_tail_factor)
     # The tails left out print nothing: the figures are those of the paths printed.
     samples, label, tree = printed_samples(samples, label, tree, tails + slivers, width_mm)
-    traces, tsig = _order_traces(joined, [[] for _ in joined], width_mm * link_factor,
+    # Every hop a stripe plan prints is one the matching took, within the budget: the
+    # isoline method's walk, which also runs on from a trace's end to the nearest by any
+    # hop shorter than a few widths, here only puts the traces in order. Its hops ran
+    # over paths whatever the budget (a two-field disk with none allowed: 59 mm of hops
+    # over paths), and the ends it took were ends the matching had weighed; with the
+    # default budget the matching joins every set into one or two traces, and it linked
+    # none on any model of the benchmark.
+    traces, tsig = _order_traces(joined, [[] for _ in joined], 0.0,
                                  merge_angle_deg, merge_sigma, footprint)
     paths = finished(traces, tsig, raw, xy, faces, None, None, outline, width_mm, len(chains),
                      samples=(samples, label, tree))
