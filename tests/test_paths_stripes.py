@@ -4,6 +4,7 @@ each segment's shrink from the triangle it crosses."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 from scipy.spatial import Delaunay
 
 from pipeline.paths import stripes
@@ -193,6 +194,59 @@ def test_the_smallest_eigenvector_of_a_nearly_degenerate_pair_is_found():
     x = stripes.smallest_eigenvector(sp.csr_matrix(A), mass, -1e-3)
     rayleigh = float(x @ A @ x) / float(x @ (mass * x))
     assert rayleigh == pytest.approx(1.0, rel=2e-3)
+
+
+def _crowded(n=300, crowd=20, seed=4):
+    """``A``, ``mass`` with the eigenvalues a dome's rings give: a smallest one, a
+    ``crowd`` just above it, and the rest far off."""
+    rng = np.random.default_rng(seed)
+    Q = np.linalg.qr(rng.standard_normal((n, n)))[0]
+    vals = np.r_[1.0, np.linspace(1.02, 1.1, crowd), np.linspace(3.0, 80.0, n - crowd - 1)]
+    mass = rng.uniform(0.5, 2.0, n)
+    S = np.diag(np.sqrt(mass))
+    return sp.csr_matrix(S @ Q @ np.diag(vals) @ Q.T @ S), mass
+
+
+def test_a_crowd_of_small_eigenvalues_costs_few_solves(monkeypatch):
+    """Inverse iteration creeps through eigenvalues crowded above the smallest, each solve
+    dividing their share by only 1.02; the Ritz vector of the solves' Krylov basis is
+    within the tolerance after a fraction of them, and is the answer."""
+    A, mass = _crowded()
+    shift, tol = -1e-6, 1e-2
+    solves = []
+
+    def counted(*args, **kwargs):
+        lu = splu(*args, **kwargs)
+
+        class Counted:
+            def solve(self, b):
+                solves.append(1)
+                return lu.solve(b)
+        return Counted()
+    monkeypatch.setattr(stripes, "splu", counted)
+    x = stripes.smallest_eigenvector(A, mass, shift, tol=tol)
+    lam = float(x @ A @ x) / float(x @ (mass * x))
+    r = A @ x - lam * mass * x
+    assert np.sqrt(r @ (r / mass)) / np.sqrt(x @ (mass * x)) <= 1.01 * tol * lam
+    # Inverse iteration from the same start, to the same tolerance.
+    lu = splu((A - shift * sp.diags(mass)).tocsc())
+    y = np.random.default_rng(0).standard_normal(len(mass))
+    for plain in range(1, 101):
+        y = lu.solve(mass * y)
+        y /= np.sqrt(y @ (mass * y))
+        mu = float(y @ A @ y)
+        if np.linalg.norm((A @ y - mu * mass * y) / np.sqrt(mass)) <= tol * mu:
+            break
+    assert len(solves) * 3 <= plain, (len(solves), plain)
+
+
+def test_a_problem_smaller_than_the_basis_is_solved_exactly():
+    """A sheet of a few vertices has fewer unknowns than the solves allowed: the basis
+    spans the whole space, and its Ritz vector is the eigenvector itself."""
+    A, mass = _crowded(n=12, crowd=2)
+    x = stripes.smallest_eigenvector(A, mass, -1e-6, tol=1e-9)
+    assert np.all(np.isfinite(x))
+    assert float(x @ A @ x) / float(x @ (mass * x)) == pytest.approx(1.0, rel=1e-9)
 
 
 def test_joining_stripe_pieces_leaves_fewer_traces_within_the_overprint_budget():

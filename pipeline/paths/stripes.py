@@ -112,14 +112,25 @@ def drawn_spacing(xy, faces, u, ok):
 
 
 def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100, start=None):
-    """The eigenvector of ``A x = lambda diag(mass) x`` with the smallest eigenvalue, by
-    inverse iteration from a fixed start (or ``start``, (2n,)) on one factorisation of
-    ``A - shift M`` (``A`` symmetric positive semi-definite, ``shift`` < 0).
+    """The eigenvector of ``A x = lambda diag(mass) x`` with the smallest eigenvalue, from
+    a fixed start (or ``start``, (2n,)) on one factorisation of ``A - shift M`` (``A``
+    symmetric positive semi-definite, ``shift`` < 0): (2n,).
 
     Where the two smallest eigenvalues nearly coincide (a field with several singular
     points) any vector of their span is an equally good stripe pattern; ARPACK, asked
     for one of the pair, started from a random vector and at times iterated for many
     minutes. Here the answer is the same every run and the iterations are capped.
+
+    Each solve extends a Lanczos basis (M-orthonormal, kept orthogonal in full), and two
+    vectors one solve on are tried: from the Ritz vector of the smallest eigenvalue, and
+    from the vector inverse iteration would have reached; the first within ``tol`` is
+    taken. Where the smallest eigenvalues crowd (the 175 mm dome's rings on a 1.25 mm
+    mesh) inverse iteration creeps through them: its three stripe sets took 50, 47 and 27
+    solves (and 28 more for a width corrected), the Ritz vector 10 each. Where they do
+    not crowd, inverse iteration's vector comes as early and is the one taken, so no
+    pattern takes more solves than inverse iteration alone (the coast tile at 175 mm: 7, 8
+    and 6 solves, against 11, 17 and 9). Both vectors and their residuals are worked out on
+    the basis's coordinates, with no product by ``A``.
     """
     # A - shift M is symmetric positive definite for shift < 0 (A is an energy): no
     # pivoting, and an ordering of A + A^T, factor it in a third of the time COLAMD
@@ -128,17 +139,44 @@ def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100, start=Non
     lu = splu((A - shift * sp.diags(mass)).tocsc(), permc_spec="MMD_AT_PLUS_A",
               diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     x = np.random.default_rng(0).standard_normal(A.shape[0]) if start is None else start
-    x = x / np.sqrt(np.dot(x, mass * x))
-    for _ in range(max_iterations):
-        y = lu.solve(mass * x)
-        y /= np.sqrt(np.dot(y, mass * y))
-        Ay = A @ y
-        lam = float(np.dot(y, Ay))
-        r = Ay - lam * mass * y
-        x = y
-        if np.sqrt(np.dot(r, r / mass)) <= tol * max(abs(lam), 1e-12):
-            break
-    return x
+    Q = np.empty((max_iterations + 1, A.shape[0]))
+    Q[0] = x / np.sqrt(np.dot(x, mass * x))
+    alpha, beta = np.zeros(max_iterations), np.zeros(max_iterations)
+    power = np.ones(1)          # inverse iteration's vector, on the basis
+    for k in range(max_iterations):
+        w = lu.solve(mass * Q[k])
+        for _ in range(2):      # twice: once loses orthogonality as the vectors converge
+            c = Q[:k + 1] @ (mass * w)
+            w -= c @ Q[:k + 1]
+            alpha[k] += c[k]
+        beta[k] = np.sqrt(np.dot(w, mass * w))
+        # K Q = Q T + beta_k q_k+1 e_k^T with K = (A - shift M)^-1 M: K of a vector is T
+        # on its coordinates and beta_k times its last one along q_k+1.
+        T = np.diag(alpha[:k + 1]) + np.diag(beta[:k], 1) + np.diag(beta[:k], -1)
+        # Where the basis spans the space (a sheet of a few vertices) beta_k is round-off
+        # and q_k+1 noise, but it enters every vector times beta_k.
+        Q[k + 1] = w / beta[k]
+        step = lambda v: np.append(T @ v, beta[k] * v[-1])
+        ritz = np.linalg.eigh(T)[1][:, -1]
+        for before in (ritz, power):
+            after = step(before)
+            if _relative_residual(before, after, shift) <= tol:
+                return after @ Q[:k + 2]
+        power = step(power)
+        power /= np.linalg.norm(power)
+    return power @ Q[:max_iterations + 1]
+
+
+def _relative_residual(before, after, shift):
+    """The eigen-residual over the Rayleigh quotient of the vector whose basis coordinates
+    are ``after`` ((k + 2,)), K of the one at ``before`` ((k + 1,)): since
+    ``(A - shift M) after = M before``, its product by ``A`` is M of ``shift after +
+    before``, on the same (M-orthonormal) basis."""
+    Aa = shift * after + np.append(before, 0.0)
+    n2 = np.dot(after, after)
+    lam = np.dot(after, Aa) / n2
+    r = Aa - lam * after
+    return np.sqrt(np.dot(r, r) / n2) / max(abs(lam), 1e-12)
 
 
 # Segments cut at a time: with the per-segment temporaries of all of them at once the
