@@ -378,9 +378,12 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     xy = np.asarray(xy, dtype=float)
     sheet = Sheet(xy, faces) if sheet is None else sheet
     drawn = plan_stripes(xy, faces, direction, sigma, width_mm, refine, sheet)
-    # Each segment's triangle rides along with its shrink, through the ends cut back.
-    chains = [(p, np.column_stack([sg, f]), closed)
-              for (p, sg, closed), f in zip(drawn.chains, drawn.faces)]
+    # Each segment's triangle rides along with its shrink, through the ends cut back
+    # (stacked for all pieces at once, then split: a stack per piece took 0.03 s a set).
+    both = np.column_stack([np.concatenate([sg for _, sg, _ in drawn.chains]),
+                            np.concatenate(drawn.faces)])
+    cut = np.cumsum([len(f) for f in drawn.faces])[:-1]
+    chains = [(p, t, closed) for (p, _, closed), t in zip(drawn.chains, np.split(both, cut))]
     if retract > 0:
         chains = retract_ends(chains, width_mm, retract)
     # A piece shorter than a path width is a blob, not a path: where stripes graze the
@@ -420,7 +423,11 @@ def stripe_toolpaths(xy, faces, direction, sigma, width_mm, merge_angle_deg=2.0,
     if level is not None:
         from pipeline.layout.curvature import isoline_directions
         fields["isoline_angle_deg"] = isoline_directions(xy, faces, level, level=(0.0, 0.0))
-    steps = np.concatenate([np.diff(p, axis=0) for p, _ in raw])
+    # Every piece's steps at once: the differences across from one piece to the next
+    # are dropped.
+    points = np.concatenate([p for p, _ in raw])
+    steps = np.delete(np.diff(points, axis=0), np.cumsum([len(p) for p, _ in raw])[:-1] - 1,
+                      axis=0)
     for key, (ang, length) in zip(fields, direction_angles(steps, face, *fields.values())):
         info[key] = dict(zip(("p50", "p95"), _weighted_percentiles(ang, length, [50, 95])))
     # Which cure a bare patch needs: forks come from a phase the triangles cannot
