@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import blas
-from scipy.sparse.linalg import splu
 
+from pipeline.linalg import factor_spd
 from pipeline.mechanics.anderson import Anderson
 from pipeline.mechanics.constraints import (corner_coefficients, face_geometry, hinge_weights,
-                                  project_corners, project_edges, row_lengths)
+                                            project_corners, project_edges, row_lengths)
 
 # Faces x 3 per block of the local step: big enough to amortise numpy's call
 # overhead, small enough for its temporaries to stay in cache.
@@ -129,8 +129,7 @@ class PDSystem:
         self.M = M.tocsr()
         self.eps = closeness * float(M.diagonal().mean())
         M = M + self.eps * sp.identity(n, format="csc")
-        self.lu = splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
+        self.lu = factor_spd(M)
 
     @property
     def A(self):

@@ -29,8 +29,8 @@ factored once.
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
+from pipeline.linalg import factor_spd
 from pipeline.mechanics.constraints import _MIN_HINGE_ANGLE_DEG, topology
 
 # A triangle's rest shape is kept at least this fat (height over longest side),
@@ -186,8 +186,7 @@ class ShellSystem:
         M = (G.T @ W @ G + hb.T @ sp.diags(self.k_hinge) @ hb).tocsc()
         eps = closeness * float(M.diagonal().mean())
         M = M + eps * sp.identity(n, format="csc")
-        return splu(M, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                    options={"SymmetricMode": True}), eps
+        return factor_spd(M), eps
 
     def _hinge_rows_at_rest(self, n, t2, t3):
         """(h, n) rows whose value on a nearly flat sheet is the hinge's dihedral

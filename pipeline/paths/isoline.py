@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
 from pipeline.geometry import boundary_loops, hat_gradients, unique_edges
+from pipeline.linalg import factor_spd
 from pipeline.paths.links import HOP
 from pipeline.paths.stats import path_metrics
 
@@ -92,10 +92,7 @@ def path_field(xy, faces, level, path_width_mm, loop=None):
     penalty = np.full(n, 1e-9 * float(L.diagonal().mean()))
     penalty[fixed] = 1e6 * float(L.diagonal().mean())
     L = (L + sp.diags(penalty)).tocsc()
-    # L is symmetric positive definite: keep the fill-reducing order, no pivoting
-    # (with the default partial pivoting the factorisation is ~200x slower).
-    u = splu(L, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-             options={"SymmetricMode": True}).solve(rhs)
+    u = factor_spd(L).solve(rhs)
     return u - u[pin]
 
 

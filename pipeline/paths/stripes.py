@@ -18,10 +18,10 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from pipeline.geometry import (hat_gradients, polyline_length, polyline_lengths, quarter_turn,
                                signed_areas_2d)
+from pipeline.linalg import factor_spd
 from pipeline.paths.ends import REACH
 from pipeline.paths.phase import BRANCH, FORK, corner_phases, stripe_matrix, vertex_line_field
 from pipeline.paths.sheet import Sheet
@@ -132,12 +132,8 @@ def smallest_eigenvector(A, mass, shift, tol=1e-2, max_iterations=100, start=Non
     and 6 solves, against 11, 17 and 9). Both vectors and their residuals are worked out on
     the basis's coordinates, with no product by ``A``.
     """
-    # A - shift M is symmetric positive definite for shift < 0 (A is an energy): no
-    # pivoting, and an ordering of A + A^T, factor it in a third of the time COLAMD
-    # takes, with less than half the fill (real tiles: 0.36 -> 0.13 s; 175 mm dome:
-    # 1.24 -> 0.29 s).
-    lu = splu((A - shift * sp.diags(mass)).tocsc(), permc_spec="MMD_AT_PLUS_A",
-              diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    # A - shift M is symmetric positive definite for shift < 0 (A is an energy).
+    lu = factor_spd(A - shift * sp.diags(mass))
     x = np.random.default_rng(0).standard_normal(A.shape[0]) if start is None else start
     Q = np.empty((max_iterations + 1, A.shape[0]))
     Q[0] = x / np.sqrt(np.dot(x, mass * x))
