@@ -141,6 +141,11 @@ class Sheet:
         return Sheet(xy, faces), parent, sides
 
 
+def _row_count(b):
+    """How many of each row of ``b`` ((m, 3) bool) are set: (m,) int."""
+    return b[:, 0].astype(np.int64) + b[:, 1] + b[:, 2]
+
+
 def split_mesh(xy, faces, red, sides=None):
     """The triangles ``red`` ((m,) bool) split in four at their sides' midpoints, and in
     two those of their neighbours that share one split side (three-way splits would need
@@ -158,7 +163,9 @@ def split_mesh(xy, faces, red, sides=None):
     while True:
         marked = np.zeros(len(edges), bool)
         marked[fe[red].ravel()] = True
-        count = marked[fe].sum(axis=1)
+        # Summed column by column: numpy's sum along a row of three took ten times as long
+        # (0.08 s of the 175 mm coast tile's stripes).
+        count = _row_count(marked[fe])
         more = ~red & (count >= 2)
         if not more.any():
             break
