@@ -375,8 +375,19 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline"), 
     each once (the quality figures are deterministic). The free method's relief is fitted
     to the material, even where a sidecar asks for a height; the isoline method plans it
     as given. ``tiles``: the real tiles' names (default all), ``methods``: which to run;
-    ``repeats``: how often each free-method plan is timed (:func:`_timed`)."""
-    out = {}
+    ``repeats``: how often each free-method plan is timed (:func:`_kept`).
+
+    Each pass times every such plan once before the next pass begins: on this shared
+    machine a neighbour's load comes and goes over minutes, and with a plan's runs back
+    to back one slow spell slowed all three (the Vancouver tile at 175 mm: 12.2, 11.3 and
+    13.9 s in one run of the benchmark, 8.9 s a median in the one before)."""
+    runs, timed = {}, []
+
+    def first(row, method, args, reference, again=True):
+        runs[(row, method)] = [_child(PLAN, *args, reference=reference)]
+        if again:
+            timed.append(((row, method), args))
+
     with tempfile.TemporaryDirectory() as tmp:
         inputs = []
         for name in names:
@@ -386,47 +397,48 @@ def bench_methods(names=METHOD_MODELS, tiles=None, methods=("free", "isoline"), 
                        if tiles is None or png.stem in tiles]
         args = {"free": ("free", "fit"), "isoline": ("isoline", "shell")}
         for name, path in inputs:
-            out[name] = {"methods": {
-                m: _timed(repeats if m == "free" else 1, str(path), tmp + "/out", *args[m],
-                          reference=m == "free")
-                for m in methods}}
+            for m in methods:
+                first(name, m, (str(path), tmp + "/out", *args[m]), m == "free", m == "free")
         # The time targets name a 175 mm real tile: each tile again at that size, with
         # the default method; and each fitted by lowering its relief only (`fit: relief`,
         # the fit's first lever), beside the default fit that smooths first.
         for name, path in inputs:
-            free = out[name]["methods"].get("free", {})
+            free = runs.get((name, "free"), [{}])[0]
             if path.suffix == ".png" and "longest_diameter_mm" in free:
-                big = _at_size(path, Path(tmp) / "big", 175.0 / free["longest_diameter_mm"])
-                out[name + " at 175 mm"] = {"methods": {
-                    "free": _timed(repeats, str(big), tmp + "/out", "free", "fit",
-                                   reference=True)}}
+                factor = 175.0 / free["longest_diameter_mm"]
+                big = _at_size(path, Path(tmp) / "big", factor)
+                first(name + " at 175 mm", "free", (str(big), tmp + "/out", "free", "fit"),
+                      True)
                 # As a user drops a tile: its size, no height, so the plan fits it.
-                bare = _at_size(path, Path(tmp) / "bare", 175.0 / free["longest_diameter_mm"],
-                                drop=("height_mm",))
-                out[name + " at 175 mm, no height"] = {"methods": {
-                    "free": _timed(repeats, str(bare), tmp + "/out", "free", reference=True)}}
+                bare = _at_size(path, Path(tmp) / "bare", factor, drop=("height_mm",))
+                first(name + " at 175 mm, no height", "free",
+                      (str(bare), tmp + "/out", "free"), True)
                 lowered = _with(path, Path(tmp) / "lowered", fit="relief")
-                out[name + " lowered only"] = {"methods": {
-                    "free": _child(PLAN, str(lowered), tmp + "/out", "free", "fit")}}
+                first(name + " lowered only", "free",
+                      (str(lowered), tmp + "/out", "free", "fit"), False, again=False)
         # The generated terrain is a 175 mm square, twice the area of a real tile 175 mm
         # across: again at that size (its detail the same per mm), to tell size from relief.
         for name in names:
             if name in ACROSS_175 and "free" in methods:
                 made = _child(SHAPE, name, tmp, "%.1f" % (175.0 / 2 ** 0.5))
-                out[name + " 175 mm across"] = {"methods": {
-                    "free": _timed(repeats, made["path"], tmp + "/out", "free", "fit",
-                                   reference=True)}}
+                first(name + " 175 mm across", "free",
+                      (made["path"], tmp + "/out", "free", "fit"), True)
+        for _ in range(max(repeats, 1) - 1):
+            for key, plan_args in timed:
+                runs[key].append(_child(PLAN, *plan_args))
+    out = {}
+    for (row, method), done in runs.items():
+        out.setdefault(row, {"methods": {}})["methods"][method] = _kept(done)
     return out
 
 
-def _timed(repeats, *args, reference=False):
-    """The plan ``args`` (as :data:`PLAN` takes them) run ``repeats`` times, the first with
-    ``reference``: the run whose CPU seconds (imports included) are the median (the lower
-    middle one of an even count), with every run's under ``repeats``. On this shared machine a single run reads 15-25 % off as a
-    neighbour's load comes and goes, more than the gap to the time targets; what a plan
-    computes does not change from run to run, only its times."""
-    runs = [_child(PLAN, *args, reference=reference)]
-    runs += [_child(PLAN, *args) for _ in range(max(repeats, 1) - 1)]
+def _kept(runs):
+    """Of a plan's ``runs`` (:data:`PLAN`'s results, the first with the reference
+    settle), the run whose CPU seconds (imports included) are the median (the lower
+    middle one of an even count), with every run's under ``repeats``. On this shared
+    machine a single run reads 15-25 % off as a neighbour's load comes and goes, more
+    than the gap to the time targets; what a plan computes does not change from run to
+    run, only its times."""
     if len(runs) == 1 or any("error" in r for r in runs):
         return runs[0]
     total = [r["cpu_s"] + r["imports"]["cpu_s"] for r in runs]
