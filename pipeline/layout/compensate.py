@@ -20,14 +20,9 @@ shrink.
 
 import numpy as np
 
-from pipeline.layout.free import ANDERSON, global_system, jacobians, local_global
+from pipeline.layout.free import global_system, jacobians, local_global
 
-# Local/global solves, mixed by Anderson acceleration as the first layout's: on the
-# 175 mm tiles each relaid layout of the plan ran to the 60 plain solves it was allowed,
-# and 30 mixed ones rest closer (the coast tile's four: residual 2.8e-3, 3.4e-3, 1.5e-3
-# and 2.3e-3 against 2.8e-3, 3.5e-3, 1.7e-3 and 2.6e-3), in 0.37 s of the plan instead
-# of 0.62.
-ITERATIONS = 30
+ITERATIONS = 60
 # Singular values this far apart name the direction the layout stretches along.
 DISTINCT = 0.01
 
@@ -57,7 +52,7 @@ def relaid(vertices, faces, xy, direction, across, min_shrink, s_min, s_max,
     def labelled(J):
         P, _, d[0] = _project_labelled(J, d[0], lam_lo, lam_hi, a)
         return P
-    X, it, residual, _ = local_global(system, X0.copy(), labelled, iterations, tol, ANDERSON)
+    X, it, residual, _ = local_global(system, X0.copy(), labelled, iterations, tol)
     _, lam, d = _project_labelled(jacobians(system[0], X, m), d[0], lam_lo, lam_hi, a)
     return X, d, 1.0 - 1.0 / lam, {"iterations": it, "residual": residual,
                                     "max_move_mm": float(np.abs(X - X0).max())}
