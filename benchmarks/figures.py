@@ -268,11 +268,23 @@ def headline(groups):
     return "\n".join(_table(models, README_COLUMNS) + [
         "", "%s, one core (BLAS threads 1), commit %s (%s), the free layout method (the "
         "relief fitted to the material). `plan s`: every stage's CPU seconds with the "
-        "imports%s; `distance to the shape`: the simulated sheet from the input as given. "
+        "imports%s; `distance to the shape`: the simulated sheet from the input as given.%s "
         "Both methods and every figure, with its conditions: [docs/figures.md]"
         "(docs/figures.md)." % (
             cond.get("cpu", "?"), cond.get("commit", "?"), cond.get("date", "?"),
-            ", the median of %d runs" % runs if runs > 1 else "")])
+            ", the median of %d runs" % runs if runs > 1 else "", _load_probe(models))])
+
+
+def _load_probe(models):
+    """What the imports say of the machine's load: they do the same work in every run,
+    so where a neighbour shared the machine they read higher, as every figure did."""
+    imports = [r["imports"]["cpu_s"] for r in models.values()
+               if isinstance(r.get("imports"), dict) and "cpu_s" in r["imports"]]
+    if not imports:
+        return ""
+    return (" The imports, the same work in every plan, took %.2f-%.2f s of CPU: where a "
+            "neighbour loads the machine they read higher, and so does every figure."
+            % (min(imports), max(imports)))
 
 
 def replace_block(text, body):

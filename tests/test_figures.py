@@ -134,4 +134,6 @@ def test_a_plan_timed_several_times_shows_its_median_and_every_run(tmp_path):
     readme.write_text("# hostd\n")
     figures.write(res, tmp_path / "figures.md", readme)
     assert "| 10.0 |" in readme.read_text() and "the median of 3 runs" in readme.read_text()
+    assert "The imports, the same work in every plan, took 0.60-0.60 s of CPU" in (
+        readme.read_text())
     assert "| 10.0 | 10.0, 12.5, 9.6 |" in (tmp_path / "figures.md").read_text()
