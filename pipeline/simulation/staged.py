@@ -84,12 +84,11 @@ def simulate_free(hf, mesh, flat, profile, twist=True, across=True, coarse_mm="a
                                            across=across, tally=tally, relief=relief)
     t1, c1 = time.perf_counter(), time.process_time()
     which = programmed.choice_of(cprog)
+    prog, settle = _chosen(hf, mesh, flat, profile, which, twist, relief=relief)
     if reference:
-        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, relief=relief)
         sim = reference_settle(hf, mesh, flat, profile, which, twist, program=(prog, settle),
                                relief=relief)
     else:
-        prog, settle = _chosen(hf, mesh, flat, profile, which, twist, relief=relief)
         sim = settle(start=carried(cmesh, csim.vertices, mesh.vertices),
                      rest_tol=FINE_REST_TOL)
     # The comparisons' figures are the coarse sheet's: they say on which sheet.
