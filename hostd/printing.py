@@ -118,7 +118,8 @@ class Printing:
         profile says ``bed_clear: auto`` and the file ends with that profile's clear_bed
         G-code (a plan made before the profile said so does not)."""
         from pipeline.errors import PipelineError
-        from pipeline.profiles.profile import CLEAR_BED_MARK, load_profile
+        from pipeline.profiles.profile import load_profile
+        from pipeline.profiles.schema import CLEAR_BED_MARK
         try:
             profile = load_profile(slot.config.profile)
         except PipelineError:

@@ -78,7 +78,7 @@ def plan_file(path, profile, progress=None, force_fit=False, method=None, held_s
     Parameters
     ----------
     path : str or Path, the height field (image, array or mesh)
-    profile : pipeline.profiles.profile.Profile
+    profile : pipeline.profiles.schema.Profile
     progress : callable(stage, message), optional
     force_fit : fit the relief (free method) even where the sidecar asks for a height
     method : the layout method, over the sidecar's ``method`` and the profile's

@@ -26,7 +26,7 @@ def figures(report):
 
 def gate(report, limits, name="NAME"):
     """The report's ``gate`` section and the problems of a plan outside ``limits``
-    (a :class:`pipeline.profiles.profile.PrintableLimits`)."""
+    (a :class:`pipeline.profiles.schema.PrintableLimits`)."""
     got = figures(report)
     diameter = report["heightfield"]["longest_diameter_mm"]
     problems = []

@@ -11,7 +11,8 @@ from hostd import jobs as J
 from hostd.web.app import create_app, problem_sentence
 from pipeline import printable
 from pipeline.plan import plan_file
-from pipeline.profiles.profile import PrintableLimits, load_profile
+from pipeline.profiles.profile import load_profile
+from pipeline.profiles.schema import PrintableLimits
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,7 +7,8 @@ import pytest
 import yaml
 
 from pipeline.errors import InvalidProfile
-from pipeline.profiles.profile import GCODE_PLACEHOLDERS, list_profiles, load_profile, parse_profile
+from pipeline.profiles.profile import list_profiles, load_profile, parse_profile
+from pipeline.profiles.schema import GCODE_PLACEHOLDERS
 from pipeline.profiles.dump import profile_dict, profile_hash, profile_to_yaml
 
 REPO = Path(__file__).resolve().parents[1]

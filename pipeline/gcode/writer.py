@@ -79,7 +79,7 @@ class GcodeSettings:
 
     @classmethod
     def from_profile(cls, profile, **overrides):
-        """Settings from a :class:`pipeline.profiles.profile.Profile` (``overrides`` win)."""
+        """Settings from a :class:`pipeline.profiles.schema.Profile` (``overrides`` win)."""
         if isinstance(profile, cls):
             return cls(**{**profile.__dict__, **overrides})
         vals = dict(
@@ -241,7 +241,7 @@ def write_gcode(traces, sigmas, profile, out, name="part", center=True, deltas=N
         Ordered tool paths in the flattened layout's coordinates.
     sigmas : list of (k_i - 1,) float
         Shrink ratio per segment.
-    profile : pipeline.profiles.profile.Profile or GcodeSettings
+    profile : pipeline.profiles.schema.Profile or GcodeSettings
     out : path or file object (text or binary)
         A path is written to ``path + ".part"`` and renamed when complete.
     name : str

@@ -27,7 +27,7 @@ from PIL import Image
 from pipeline.input.regular import opener
 from pipeline.errors import InvalidHeightField
 from pipeline.geometry import HeightField
-from pipeline.profiles.profile import Defaults, ValidateParams
+from pipeline.profiles.schema import Defaults, ValidateParams
 from pipeline.input import meshread
 from pipeline.input.meshread import MESH_PIXEL_MM
 from pipeline.input.sidecar import load_sidecar, sidecar_path
@@ -58,7 +58,7 @@ def load(path, profile=None, max_pixels=None):
     ----------
     path : str or Path
         ``.png``, ``.tif``/``.tiff``, ``.npy``, ``.npz``, ``.stl``, ``.obj``, ``.ply`` or ``.glb``.
-    profile : pipeline.profiles.profile.Profile, optional
+    profile : pipeline.profiles.schema.Profile, optional
         Supplies ``defaults`` (scale without sidecar) and ``validate`` limits.
     max_pixels : int, optional
         Refuse inputs declaring more samples (default: the profile's

@@ -17,7 +17,7 @@ import yaml
 
 from pipeline.errors import InvalidSidecar
 from pipeline.input.regular import opener
-from pipeline.profiles.profile import MeshParams, ValidateParams
+from pipeline.profiles.schema import MeshParams, ValidateParams
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,8 @@ from dataclasses import fields
 
 import yaml
 
-from pipeline.profiles.profile import Profile, parse_profile
+from pipeline.profiles.profile import parse_profile
+from pipeline.profiles.schema import Profile
 
 
 def profile_dict(profile):
