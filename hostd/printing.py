@@ -17,7 +17,6 @@ import logging
 import os
 import shutil
 import time
-from pathlib import Path
 
 from hostd import jobs as J
 from hostd.farm import archive_done
