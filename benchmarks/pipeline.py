@@ -2,8 +2,8 @@
 
 Each case runs in a fresh child process pinned to one core (BLAS threads 1),
 so times are single-core and the peak resident memory (ru_maxrss) is the
-case's own (what each child runs: ``children.py``). Targets are reported next to the measurements;
-nothing here asserts them.
+case's own (what each child runs: ``children.py``). Targets are reported next
+to the measurements; nothing here asserts them.
 
     python benchmarks/pipeline.py                 # everything
     python benchmarks/pipeline.py --only flatten  # one group: flatten | plan | terrain |
